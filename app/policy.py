@@ -1,0 +1,320 @@
+"""The paper's few-parameter policy: θ ∈ [0,1]^D → discrete paired actions → pressure schedule.
+
+Chamber order everywhere: joint 0 (x+, x−, y+, y−), joint 1 (…), joint 2 (…): 12 pressures, Pa.
+The six *paired commands* are, in order: j0.x, j0.y, j1.x, j1.y, j2.x, j2.y. Paired command u
+sets the "+" chamber of its pair; the "−" chamber gets the mirrored pressure.
+
+Action indices enumerate the P^6 level combinations in C order (``numpy.unravel_index``):
+the first paired command (j0.x) is the most significant digit.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+N_CHAMBERS = 12
+N_PAIRED = 6
+PSI_PA = 6894.757293168
+SIM_MAX_PRESSURE_PA = 40.0 * PSI_PA  # 275.8 kPa: the simulator's command range is [0, 40 psi]
+HORIZON = 10
+EPISODE_S = 5.0
+
+CHAMBER_NAMES: tuple[str, ...] = tuple(
+    f"j{j}.{axis}{sign}" for j in range(3) for axis in ("x", "y") for sign in ("+", "-")
+)
+PAIRED_NAMES: tuple[str, ...] = tuple(f"j{j}.{axis}" for j in range(3) for axis in ("x", "y"))
+
+
+class PolicyError(ValueError):
+    """θ, an action index or a schedule that the policy cannot accept."""
+
+
+class PressureLimitError(PolicyError):
+    """A pressure schedule outside the limits; the message names chamber, step and value."""
+
+    def __init__(self, message: str, *, chamber: int, step: int, value_pa: float) -> None:
+        super().__init__(message)
+        self.chamber = chamber
+        self.step = step
+        self.value_pa = value_pa
+
+
+@dataclass(frozen=True)
+class PressureLimits:
+    """Hardware limits: offsets of at most ``max_step_pa`` around per-chamber nominal pressures.
+
+    Attributes:
+        nominal_pa: 12 nominal chamber pressures, Pa (chamber order as above).
+        max_step_pa: largest offset from nominal any chamber may get, Pa (paper: 30 kPa).
+        source_pa: supply pressure, Pa; no chamber may exceed it (paper: about 205 kPa).
+    """
+
+    nominal_pa: tuple[float, ...] = (100_000.0,) * N_CHAMBERS
+    max_step_pa: float = 30_000.0
+    source_pa: float = 205_000.0
+
+    def __post_init__(self) -> None:
+        nominal = tuple(float(v) for v in np.broadcast_to(self.nominal_pa, (N_CHAMBERS,)))
+        object.__setattr__(self, "nominal_pa", nominal)
+        if not all(math.isfinite(v) for v in (*nominal, self.max_step_pa, self.source_pa)):
+            raise PolicyError("pressure limits must be finite numbers")
+        if self.max_step_pa <= 0:
+            raise PolicyError(f"max_step_pa must be > 0 Pa, got {self.max_step_pa:g}")
+        if self.source_pa <= 0:
+            raise PolicyError(f"source_pa must be > 0 Pa, got {self.source_pa:g}")
+        for c, p in enumerate(nominal):
+            lo, hi = p - self.max_step_pa, p + self.max_step_pa
+            if lo < 0 or hi > self.source_pa:
+                raise PolicyError(
+                    f"chamber {CHAMBER_NAMES[c]}: nominal {p:g} Pa ± max step "
+                    f"{self.max_step_pa:g} Pa spans [{lo:g}, {hi:g}] Pa, outside "
+                    f"[0, source {self.source_pa:g}] Pa"
+                )
+
+    @property
+    def lower_pa(self) -> np.ndarray:
+        """(12,) lowest allowed pressure per chamber, Pa."""
+        return np.asarray(self.nominal_pa) - self.max_step_pa
+
+    @property
+    def upper_pa(self) -> np.ndarray:
+        """(12,) highest allowed pressure per chamber, Pa."""
+        return np.asarray(self.nominal_pa) + self.max_step_pa
+
+
+def check_schedule(
+    pressure_schedule_pa: np.ndarray,
+    *,
+    lower_pa: np.ndarray | float = 0.0,
+    upper_pa: np.ndarray | float = SIM_MAX_PRESSURE_PA,
+    tolerance_pa: float = 1e-6,
+) -> np.ndarray:
+    """Validate an (H, 12) schedule in Pa against per-chamber bounds; return it as float64.
+
+    Raises:
+        PolicyError: wrong shape or non-finite values.
+        PressureLimitError: a value outside [lower, upper]; names chamber, step (1-based), value.
+    """
+    try:
+        schedule = np.asarray(pressure_schedule_pa, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise PolicyError(f"pressure schedule is not numeric: {exc}") from None
+    if schedule.ndim != 2 or schedule.shape[1] != N_CHAMBERS or schedule.shape[0] < 1:
+        raise PolicyError(
+            f"pressure schedule must have shape (H, {N_CHAMBERS}) with H ≥ 1, "
+            f"got {tuple(schedule.shape)}"
+        )
+    bad = ~np.isfinite(schedule)
+    if bad.any():
+        step, chamber = (int(i) for i in np.argwhere(bad)[0])
+        raise PressureLimitError(
+            f"step {step + 1}, chamber {CHAMBER_NAMES[chamber]}: pressure is "
+            f"{schedule[step, chamber]!r}, not a finite number",
+            chamber=chamber,
+            step=step + 1,
+            value_pa=float(schedule[step, chamber]),
+        )
+    lo = np.broadcast_to(np.asarray(lower_pa, dtype=np.float64), (N_CHAMBERS,))
+    hi = np.broadcast_to(np.asarray(upper_pa, dtype=np.float64), (N_CHAMBERS,))
+    outside = (schedule < lo - tolerance_pa) | (schedule > hi + tolerance_pa)
+    if outside.any():
+        step, chamber = (int(i) for i in np.argwhere(outside)[0])
+        value = float(schedule[step, chamber])
+        raise PressureLimitError(
+            f"step {step + 1}, chamber {CHAMBER_NAMES[chamber]}: {value:.1f} Pa is outside "
+            f"the allowed [{lo[chamber]:.1f}, {hi[chamber]:.1f}] Pa",
+            chamber=chamber,
+            step=step + 1,
+            value_pa=value,
+        )
+    return schedule
+
+
+@dataclass(frozen=True)
+class DecodedPolicy:
+    """What θ means on the robot.
+
+    Attributes:
+        action_indices: (H,) ints in [0, P^6).
+        level_indices: (H, 6) ints in [0, P), one per paired command.
+        pressure_schedule_pa: (H, 12) commanded pressures, Pa; row t is held for 5 s / H.
+        release_step: 1-based control step at whose end the object is released (throw), else None.
+    """
+
+    action_indices: np.ndarray
+    level_indices: np.ndarray
+    pressure_schedule_pa: np.ndarray
+    release_step: int | None
+
+
+@dataclass(frozen=True)
+class Policy:
+    """θ ∈ [0,1]^D ↔ pressure schedule, as in the paper (D = H, plus one for ``release_step``).
+
+    Sim mode (``limits is None``): each paired command spans [p_min, p_max] = [0, 275.8 kPa],
+    and the partner chamber gets ``p_min + p_max − p_plus``.
+    Hardware mode: levels span the offset δ ∈ [−max_step, +max_step]; the "+" chamber gets
+    nominal + δ, its partner nominal − δ.
+    """
+
+    levels: int
+    horizon: int = HORIZON
+    with_release: bool = False
+    p_min_pa: float = 0.0
+    p_max_pa: float = SIM_MAX_PRESSURE_PA
+    limits: PressureLimits | None = field(default=None)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.levels, int | np.integer) or self.levels < 2:
+            raise PolicyError(f"levels (P) must be an integer ≥ 2, got {self.levels!r}")
+        if self.levels > 1000:
+            raise PolicyError(f"levels (P) must be ≤ 1000, got {self.levels}")
+        if not isinstance(self.horizon, int | np.integer) or not 1 <= self.horizon <= 1000:
+            raise PolicyError(f"horizon (H) must be an integer in [1, 1000], got {self.horizon!r}")
+        if not (0 <= self.p_min_pa < self.p_max_pa):
+            raise PolicyError(
+                f"need 0 ≤ p_min < p_max, got p_min={self.p_min_pa:g}, p_max={self.p_max_pa:g}"
+            )
+
+    # --- sizes -------------------------------------------------------------------------------
+    @property
+    def n_actions(self) -> int:
+        """M = P^6, the size of the paired, discretised action set."""
+        return int(self.levels) ** N_PAIRED
+
+    @property
+    def dim(self) -> int:
+        """D: H, plus one for the release step when throwing."""
+        return int(self.horizon) + int(self.with_release)
+
+    @property
+    def step_s(self) -> float:
+        """Seconds each schedule row is held: 5 s / H."""
+        return EPISODE_S / self.horizon
+
+    # --- pressure levels -----------------------------------------------------------------------
+    def level_pressures_pa(self) -> np.ndarray:
+        """(12, P): the pressure of each chamber at each level of its paired command, Pa."""
+        frac = np.linspace(0.0, 1.0, self.levels)
+        out = np.empty((N_CHAMBERS, self.levels))
+        if self.limits is None:
+            plus = self.p_min_pa + frac * (self.p_max_pa - self.p_min_pa)
+            minus = self.p_min_pa + self.p_max_pa - plus
+            for u in range(N_PAIRED):
+                out[2 * u], out[2 * u + 1] = plus, minus
+        else:
+            delta = -self.limits.max_step_pa + frac * 2.0 * self.limits.max_step_pa
+            nominal = np.asarray(self.limits.nominal_pa)
+            for u in range(N_PAIRED):
+                out[2 * u] = nominal[2 * u] + delta
+                out[2 * u + 1] = nominal[2 * u + 1] - delta
+        return out
+
+    def bounds_pa(self) -> tuple[np.ndarray, np.ndarray]:
+        """(12,), (12,): the lowest and highest pressure this policy may command, Pa."""
+        if self.limits is None:
+            return (np.full(N_CHAMBERS, self.p_min_pa), np.full(N_CHAMBERS, self.p_max_pa))
+        return self.limits.lower_pa, self.limits.upper_pa
+
+    # --- θ ↔ actions ----------------------------------------------------------------------------
+    def _check_theta(self, theta: np.ndarray) -> np.ndarray:
+        try:
+            th = np.asarray(theta, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise PolicyError(f"θ must be a list of {self.dim} numbers in [0, 1]") from None
+        if th.shape != (self.dim,):
+            raise PolicyError(
+                f"θ must have {self.dim} entries (H={self.horizon}"
+                f"{' + release step' if self.with_release else ''}), got shape {th.shape}"
+            )
+        if not np.all(np.isfinite(th)):
+            raise PolicyError(f"θ must be finite, got {th.tolist()}")
+        outside = np.flatnonzero((th < 0.0) | (th > 1.0))
+        if outside.size:
+            i = int(outside[0])
+            raise PolicyError(f"θ[{i}] = {th[i]!r} is outside [0, 1]")
+        return th
+
+    def actions_from_theta(self, theta: np.ndarray) -> tuple[np.ndarray, int | None]:
+        """g: θ (D,) → (action indices (H,), release_step or None). Floors θ·M, clips M → M−1."""
+        th = self._check_theta(theta)
+        m = self.n_actions
+        actions = np.minimum(np.floor(th[: self.horizon] * m).astype(np.int64), m - 1)
+        release = None
+        if self.with_release:
+            release = int(min(math.floor(th[self.horizon] * self.horizon), self.horizon - 1)) + 1
+        return actions, release
+
+    def theta_from_actions(self, actions: np.ndarray, release_step: int | None = None) -> np.ndarray:
+        """Inverse of g: the centre of each action's θ bin, so decode(encode(a)) == a. (D,)."""
+        a = np.asarray(actions, dtype=np.int64)
+        if a.shape != (self.horizon,):
+            raise PolicyError(f"need {self.horizon} action indices, got shape {a.shape}")
+        if a.min() < 0 or a.max() >= self.n_actions:
+            raise PolicyError(f"action indices must lie in [0, {self.n_actions}), got {a.tolist()}")
+        theta = (a.astype(np.float64) + 0.5) / self.n_actions
+        if self.with_release:
+            if release_step is None or not 1 <= int(release_step) <= self.horizon:
+                raise PolicyError(f"release_step must be in 1..{self.horizon}, got {release_step}")
+            theta = np.append(theta, (int(release_step) - 0.5) / self.horizon)
+        elif release_step is not None:
+            raise PolicyError("this policy has no release step")
+        return theta
+
+    # --- actions ↔ schedule ---------------------------------------------------------------------
+    def levels_from_actions(self, actions: np.ndarray) -> np.ndarray:
+        """(H,) action indices → (H, 6) level index per paired command (C order digits)."""
+        digits = np.unravel_index(np.asarray(actions, dtype=np.int64), (self.levels,) * N_PAIRED)
+        return np.stack(digits, axis=-1)
+
+    def schedule_from_levels(self, level_indices: np.ndarray) -> np.ndarray:
+        """(H, 6) level indices → (H, 12) pressure schedule, Pa."""
+        table = self.level_pressures_pa()  # (12, P)
+        lv = np.asarray(level_indices, dtype=np.int64)
+        chamber_levels = np.repeat(lv, 2, axis=1)  # both chambers of a pair share the level
+        return table[np.arange(N_CHAMBERS)[None, :], chamber_levels]
+
+    def decode(self, theta: np.ndarray) -> DecodedPolicy:
+        """θ (D,) → the schedule the robot runs. Checked against this policy's limits."""
+        actions, release = self.actions_from_theta(theta)
+        levels = self.levels_from_actions(actions)
+        schedule = self.schedule_from_levels(levels)
+        self.check(schedule)
+        return DecodedPolicy(actions, levels, schedule, release)
+
+    def check(self, pressure_schedule_pa: np.ndarray) -> np.ndarray:
+        """Refuse an (H, 12) schedule outside this policy's pressure bounds (see check_schedule)."""
+        lo, hi = self.bounds_pa()
+        if self.limits is not None:
+            lo, hi = np.maximum(lo, 0.0), np.minimum(hi, self.limits.source_pa)
+        schedule = check_schedule(pressure_schedule_pa, lower_pa=lo, upper_pa=hi)
+        if schedule.shape[0] != self.horizon:
+            raise PolicyError(
+                f"pressure schedule has {schedule.shape[0]} steps, this policy has H={self.horizon}"
+            )
+        return schedule
+
+    def encode(
+        self, pressure_schedule_pa: np.ndarray, release_step: int | None = None
+    ) -> np.ndarray:
+        """Schedule (H, 12) on this policy's grid → θ (D,). Raises if it is off the grid."""
+        schedule = self.check(pressure_schedule_pa)
+        table = self.level_pressures_pa()  # (12, P)
+        tol = 1e-6 * max(1.0, float(np.abs(table).max()))
+        levels = np.empty((self.horizon, N_PAIRED), dtype=np.int64)
+        for u in range(N_PAIRED):
+            for t in range(self.horizon):
+                pair = schedule[t, 2 * u : 2 * u + 2]
+                err = np.abs(table[2 * u : 2 * u + 2, :] - pair[:, None]).max(axis=0)
+                best = int(np.argmin(err))
+                if err[best] > tol:
+                    raise PolicyError(
+                        f"step {t + 1}, pair {PAIRED_NAMES[u]}: pressures {pair.tolist()} Pa "
+                        f"are not one of the policy's {self.levels} paired levels"
+                    )
+                levels[t, u] = best
+        actions = np.ravel_multi_index(tuple(levels.T), (self.levels,) * N_PAIRED)
+        return self.theta_from_actions(np.asarray(actions), release_step)
