@@ -248,7 +248,9 @@ class Policy:
             release = int(min(math.floor(th[self.horizon] * self.horizon), self.horizon - 1)) + 1
         return actions, release
 
-    def theta_from_actions(self, actions: np.ndarray, release_step: int | None = None) -> np.ndarray:
+    def theta_from_actions(
+        self, actions: np.ndarray, release_step: int | None = None
+    ) -> np.ndarray:
         """Inverse of g: the centre of each action's θ bin, so decode(encode(a)) == a. (D,)."""
         a = np.asarray(actions, dtype=np.int64)
         if a.shape != (self.horizon,):

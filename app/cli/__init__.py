@@ -18,7 +18,6 @@ app = typer.Typer(
 _COMMAND_MODULES = ("sim", "bench", "serve", "users", "worker", "demo")
 
 
-
 @app.callback()
 def _root() -> None:
     """handful: BayesOpt with a person in the loop, for a pneumatic soft arm."""
