@@ -10,6 +10,8 @@ the first paired command (j0.x) is the most significant digit.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 from dataclasses import dataclass, field
 
@@ -320,3 +322,18 @@ class Policy:
                 levels[t, u] = best
         actions = np.ravel_multi_index(tuple(levels.T), (self.levels,) * N_PAIRED)
         return self.theta_from_actions(np.asarray(actions), release_step)
+
+
+def schedule_hash(pressure_schedule_pa: np.ndarray, release_step: int | None = None) -> str:
+    """SHA-256 (hex) of a schedule as the robot would run it: what an operator's confirmation binds.
+
+    The schedule (H, 12) Pa is rounded to 1 mPa before hashing, so JSON round trips of the
+    same numbers give the same hash while any real change gives a different one.
+    """
+    schedule = np.asarray(pressure_schedule_pa, dtype=np.float64)
+    payload = {
+        "pressure_schedule_mpa": np.round(schedule * 1000.0).astype(np.int64).tolist(),
+        "release_step": None if release_step is None else int(release_step),
+    }
+    blob = json.dumps(payload, sort_keys=True, separators=(",", ":")).encode()
+    return hashlib.sha256(blob).hexdigest()
