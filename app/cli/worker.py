@@ -1,9 +1,148 @@
-"""`handful worker` commands (being built)."""
+"""`handful worker sim|hardware`: run trials for a server, over HTTP only."""
 
 from __future__ import annotations
 
+import logging
+import sys
+from typing import Annotated
+
 import typer
+
+worker_app = typer.Typer(
+    help="Workers that claim and run trials for a handful server.", no_args_is_help=True
+)
+
+ServerOpt = Annotated[
+    str, typer.Option("--server", envvar="HANDFUL_SERVER", help="server URL, e.g. http://host:8000")
+]
+TokenOpt = Annotated[
+    str, typer.Option("--token", envvar="HANDFUL_TOKEN", help="a worker token", show_default=False)
+]
+IdOpt = Annotated[str | None, typer.Option("--worker-id", help="name in the audit log")]
+MaxTrialsOpt = Annotated[
+    int | None, typer.Option("--max-trials", min=1, help="exit after this many trials")
+]
+IdleOpt = Annotated[
+    float | None, typer.Option("--idle-exit", min=0.0, help="exit after this many idle seconds")
+]
+PollOpt = Annotated[float, typer.Option("--poll", min=0.05, help="longest pause between claims, s")]
+LogOpt = Annotated[str, typer.Option("--log-level", help="DEBUG, INFO, WARNING")]
+
+
+def _setup(log_level: str) -> None:
+    logging.basicConfig(
+        level=log_level.upper(),
+        stream=sys.stderr,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+    )
+
+
+def _client(server: str, token: str):
+    from app.client import HandfulClient
+
+    return HandfulClient(server, token=token)
+
+
+def _parse_options(pairs: list[str]) -> dict[str, str]:
+    options: dict[str, str] = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key.strip():
+            raise typer.BadParameter(f"driver option {pair!r} must look like KEY=VALUE")
+        options[key.strip()] = value
+    return options
+
+
+@worker_app.command("sim")
+def sim(
+    server: ServerOpt,
+    token: TokenOpt,
+    max_parallel: Annotated[
+        int | None, typer.Option("--max-parallel", min=1, help="rollouts at once (default: cores)")
+    ] = None,
+    worker_id: IdOpt = None,
+    max_trials: MaxTrialsOpt = None,
+    idle_exit: IdleOpt = None,
+    poll: PollOpt = 1.0,
+    no_qpos: Annotated[
+        bool, typer.Option("--no-qpos", help="do not upload joint positions (no 3D replay)")
+    ] = False,
+    log_level: LogOpt = "INFO",
+) -> None:
+    """Claim queued sim trials, run them on all cores, upload objective and trajectory."""
+    from app.workers.common import StopFlag
+    from app.workers.sim import SimWorker
+
+    _setup(log_level)
+    stop = StopFlag()
+    stop.install()
+    worker = SimWorker(
+        _client(server, token),
+        max_parallel=max_parallel,
+        worker_id=worker_id,
+        poll_s=poll,
+        record_qpos=not no_qpos,
+        stop=stop,
+    )
+    logging.getLogger("handful.worker").info(
+        "sim worker %s on %s, %d process(es)", worker.worker_id, server, worker.max_parallel
+    )
+    ran = worker.run(max_trials=max_trials, idle_exit_s=idle_exit)
+    typer.echo(f"sim worker {worker.worker_id}: {ran} trial(s) run, exiting")
+
+
+@worker_app.command("hardware")
+def hardware(
+    server: ServerOpt,
+    token: TokenOpt,
+    driver: Annotated[
+        str,
+        typer.Option(
+            "--driver", help="driver name (e.g. standin), plug-in name, or 'module:factory'"
+        ),
+    ],
+    driver_option: Annotated[
+        list[str] | None,
+        typer.Option("--driver-option", "-o", help="KEY=VALUE passed to the driver (repeatable)"),
+    ] = None,
+    worker_id: IdOpt = None,
+    max_trials: MaxTrialsOpt = None,
+    idle_exit: IdleOpt = None,
+    poll: PollOpt = 1.0,
+    log_level: LogOpt = "INFO",
+) -> None:
+    """Claim confirmed hardware trials and run them, one at a time, through a robot driver."""
+    from app.workers.common import StopFlag
+    from app.workers.drivers import DriverError, load_driver
+    from app.workers.hardware import HardwareWorker
+
+    _setup(log_level)
+    try:
+        robot = load_driver(driver, **_parse_options(driver_option or []))
+    except DriverError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    stop = StopFlag()
+    stop.install()
+    worker = HardwareWorker(
+        _client(server, token), robot, worker_id=worker_id, poll_s=poll, stop=stop
+    )
+    logging.getLogger("handful.worker").info(
+        "hardware worker %s on %s, driver %s", worker.worker_id, server, driver
+    )
+    ran = worker.run(max_trials=max_trials, idle_exit_s=idle_exit)
+    typer.echo(f"hardware worker {worker.worker_id}: {ran} trial(s) run, exiting")
+
+
+@worker_app.command("drivers")
+def drivers() -> None:
+    """List the robot drivers this installation knows."""
+    from app.workers.drivers import available_drivers
+
+    for name, target in sorted(available_drivers().items()):
+        typer.echo(f"{name}\t{target}")
 
 
 def register(app: typer.Typer) -> None:
-    """Add this module's commands to the root app."""
+    """Add the `worker` group to the root app."""
+    app.add_typer(worker_app, name="worker")

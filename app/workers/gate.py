@@ -1,0 +1,133 @@
+"""The hardware worker's own safety gate: the last check before anything moves.
+
+The server already refuses out-of-limit schedules and unconfirmed claims; this gate checks again
+on the worker, from the claim's JSON alone, so that a server bug, a forged response or a changed
+schedule still cannot reach the driver. Every check must pass or nothing is sent.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from app.policy import N_CHAMBERS, Policy, PolicyError, PressureLimits, schedule_hash
+from app.workers.drivers.base import DriverCommand
+
+
+class SafetyRefusal(Exception):
+    """The worker refuses to run a trial; the message says which check failed."""
+
+
+def _field(obj: Mapping[str, Any], *names: str) -> Any:
+    for name in names:
+        if name in obj and obj[name] is not None:
+            return obj[name]
+    return None
+
+
+def limits_from_experiment(experiment: Mapping[str, Any]) -> PressureLimits:
+    """The experiment's hardware limits (nominal ± max step within [0, source]); refuse if none."""
+    limits = _field(experiment, "limits", "hardware_limits")
+    src: Mapping[str, Any] = limits if isinstance(limits, Mapping) else experiment
+    nominal = _field(src, "nominal_pa", "nominal_pressure_pa")
+    max_step = _field(src, "max_step_pa")
+    source = _field(src, "source_pa", "source_pressure_pa")
+    if nominal is None or max_step is None or source is None:
+        raise SafetyRefusal("experiment carries no hardware limits (nominal, max step, source)")
+    try:
+        return PressureLimits(
+            nominal_pa=tuple(np.broadcast_to(np.asarray(nominal, dtype=float), (N_CHAMBERS,))),
+            max_step_pa=float(max_step),
+            source_pa=float(source),
+        )
+    except (PolicyError, ValueError, TypeError) as exc:
+        raise SafetyRefusal(f"experiment's hardware limits are invalid: {exc}") from None
+
+
+def policy_from_experiment(experiment: Mapping[str, Any]) -> Policy:
+    """The experiment's policy (P, H, release step) with its hardware limits."""
+    pol = _field(experiment, "policy")
+    src: Mapping[str, Any] = pol if isinstance(pol, Mapping) else experiment
+    try:
+        return Policy(
+            levels=int(_field(src, "levels", "P")),
+            horizon=int(_field(src, "horizon", "H")),
+            with_release=bool(_field(src, "with_release", "release") or False),
+            limits=limits_from_experiment(experiment),
+        )
+    except (PolicyError, TypeError, ValueError) as exc:
+        raise SafetyRefusal(f"experiment's policy settings are invalid: {exc}") from None
+
+
+def gate_hardware_trial(
+    trial: Mapping[str, Any], experiment: Mapping[str, Any], *, trial_id: int | None = None
+) -> DriverCommand:
+    """Check a claimed hardware trial end to end; return the one command the driver may run.
+
+    Checks, in order: the experiment targets hardware and owns the trial; the schedule is
+    (H, 12), finite and inside nominal ± max step within [0, source]; the release step fits the
+    policy; θ decodes to exactly this schedule; a confirmation (who, when, hash) is on record and
+    its hash equals `schedule_hash` of the schedule about to be sent.
+
+    Raises:
+        SafetyRefusal: naming the first check that failed.
+    """
+    if experiment.get("target") != "hardware":
+        raise SafetyRefusal(f"experiment target is {experiment.get('target')!r}, not 'hardware'")
+    if trial.get("experiment_id") != experiment.get("id"):
+        raise SafetyRefusal(
+            f"trial belongs to experiment {trial.get('experiment_id')!r}, "
+            f"claim came with experiment {experiment.get('id')!r}"
+        )
+    task = experiment.get("task")
+    if task not in {"tip_speed", "throw", "hammer"}:
+        raise SafetyRefusal(f"unknown task {task!r}")
+    policy = policy_from_experiment(experiment)
+    assert policy.limits is not None
+
+    raw = trial.get("pressure_schedule_pa")
+    if raw is None:
+        raise SafetyRefusal("trial has no pressure schedule")
+    try:
+        schedule = policy.check(np.asarray(raw, dtype=np.float64))
+    except (PolicyError, TypeError, ValueError) as exc:
+        raise SafetyRefusal(f"schedule refused by the hardware limits: {exc}") from None
+
+    release = trial.get("release_step")
+    if policy.with_release:
+        if not isinstance(release, int) or isinstance(release, bool):
+            raise SafetyRefusal(f"release_step must be an integer 1..{policy.horizon}")
+        if not 1 <= release <= policy.horizon:
+            raise SafetyRefusal(f"release_step {release} is outside 1..{policy.horizon}")
+    elif release is not None:
+        raise SafetyRefusal(f"this policy has no release step, trial carries {release!r}")
+
+    try:
+        decoded = policy.decode(np.asarray(trial.get("theta"), dtype=np.float64))
+    except (PolicyError, TypeError, ValueError) as exc:
+        raise SafetyRefusal(f"trial θ is invalid: {exc}") from None
+    if not np.allclose(decoded.pressure_schedule_pa, schedule, rtol=0.0, atol=1e-3) or (
+        decoded.release_step != release
+    ):
+        raise SafetyRefusal("trial's schedule is not what its θ decodes to")
+
+    confirmed_hash = trial.get("schedule_hash")
+    if not confirmed_hash or not trial.get("confirmed_by") or not trial.get("confirmed_at"):
+        raise SafetyRefusal("no operator confirmation on record for this trial")
+    expected = schedule_hash(schedule, release)
+    if confirmed_hash != expected:
+        raise SafetyRefusal(
+            "confirmation is stale: it was given for a different schedule "
+            f"(confirmed {str(confirmed_hash)[:12]}…, about to send {expected[:12]}…)"
+        )
+
+    return DriverCommand(
+        trial_id=int(trial_id if trial_id is not None else trial.get("id", -1)),
+        task=str(task),
+        pressure_schedule_pa=schedule.copy(),
+        release_step=release,
+        step_s=policy.step_s,
+        nominal_pa=np.asarray(policy.limits.nominal_pa, dtype=np.float64),
+    )
