@@ -1,0 +1,42 @@
+"""The simulated soft arm (MuJoCo, built with MjSpec), its tasks, rollouts and presets.
+
+>>> from app.sim import rollout
+>>> res = rollout("tip_speed", schedule_pa)          # schedule_pa: (H, 12) Pa
+>>> res.objective, res.max_tip_speed, res.trajectory.tip_pos_m.shape
+"""
+
+from app.sim.batch import RolloutPool, rollout_batch
+from app.sim.model import TASKS, build_model, build_spec, export_xml
+from app.sim.params import (
+    ArmParams,
+    ContinuumJointParams,
+    CubeParams,
+    ForcePlateParams,
+    GripperParams,
+    HammerParams,
+    LinkParams,
+)
+from app.sim.presets import PRESETS, Preset
+from app.sim.rollout import RolloutResult, SimulationDiverged, Trajectory, rollout
+
+__all__ = [
+    "PRESETS",
+    "TASKS",
+    "ArmParams",
+    "ContinuumJointParams",
+    "CubeParams",
+    "ForcePlateParams",
+    "GripperParams",
+    "HammerParams",
+    "LinkParams",
+    "Preset",
+    "RolloutPool",
+    "RolloutResult",
+    "SimulationDiverged",
+    "Trajectory",
+    "build_model",
+    "build_spec",
+    "export_xml",
+    "rollout",
+    "rollout_batch",
+]

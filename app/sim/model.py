@@ -1,0 +1,451 @@
+"""The soft arm, its tip loads and its task scenes, built in code with ``mujoco.MjSpec``.
+
+Layout (ROBOT.md): a base box; three continuum joints, each ``n_disks`` thin cylinders joined by
+x/y hinge pairs (springs/dampers in series: k·n, c·n per hinge; range = limit / n; anchors at
+(0, 0, h) in the child disk's frame); two rigid links; an end-effector site 1.5 h above the last
+disk with a velocimeter. Per joint, fixed tendons sum its x and its y hinges; each tendon carries
+two cylinder actuators of opposite gear. Actuator order = chamber order: joint 0 (x+, x−, y+,
+y−), joint 1, joint 2.
+
+Tasks add their scene: ``throw`` a gripper and a welded 0.25 kg cube (weld ``grip``), ``hammer``
+a 2 kg ball and a force plate with a touch sensor, ``tip_speed`` nothing (the bare arm, as on
+the real robot).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from app.sim.params import ArmParams, LinkParams
+from app.sim.presets import Preset, get_preset
+
+TASKS: tuple[str, ...] = ("throw", "hammer", "tip_speed")
+
+EEF_SITE = "eef"
+GRIP_WELD = "grip"
+CUBE_BODY = "cube"
+HAMMER_BODY = "hammer"
+GRIPPER_BODY = "gripper"
+PLATE_SENSOR = "plate_force"
+EEF_VEL_SENSOR = "eef_vel"
+
+_ORANGE = (0.8, 0.2, 0.1, 1.0)
+_GREY = (0.5, 0.5, 0.5, 1.0)
+
+
+def check_task(task: str) -> str:
+    """Return ``task`` if known; ValueError naming the choices otherwise."""
+    if task not in TASKS:
+        raise ValueError(f"unknown task {task!r}; choose one of {', '.join(TASKS)}")
+    return task
+
+
+def hinge_joint_name(joint: int, axis: str, hinge: int) -> str:
+    """Name of hinge ``hinge`` (1..n−1) about ``axis`` ("x"/"y") of continuum joint ``joint``."""
+    return f"j{joint}_{axis}{hinge}"
+
+
+def disk_body_name(joint: int, disk: int) -> str:
+    """Name of disk ``disk`` (0..n−1) of continuum joint ``joint``."""
+    return f"j{joint}_disk{disk}"
+
+
+def tendon_name(joint: int, axis: str) -> str:
+    """Fixed tendon summing joint ``joint``'s hinges about ``axis``: its bend (u for x, v for y)."""
+    return f"j{joint}_{axis}"
+
+
+def chamber_name(joint: int, axis: str, sign: str) -> str:
+    """Actuator name of one chamber, as in app.policy.CHAMBER_NAMES (e.g. ``j0.x+``)."""
+    return f"j{joint}.{axis}{sign}"
+
+
+def _axis_angle_quat(axis: tuple[float, float, float], angle_rad: float) -> list[float]:
+    a = np.asarray(axis, dtype=float)
+    a /= np.linalg.norm(a)
+    s = math.sin(angle_rad / 2.0)
+    return [math.cos(angle_rad / 2.0), *(s * a)]
+
+
+def _yaw_quat(angle_rad: float) -> list[float]:
+    return _axis_angle_quat((0.0, 0.0, 1.0), angle_rad)
+
+
+def _cylinder_inertia(mass: float, radius: float, height: float) -> list[float]:
+    ixy = mass * (3.0 * radius**2 + height**2) / 12.0
+    return [ixy, ixy, mass * radius**2 / 2.0]
+
+
+def _set_inertial(
+    body: mujoco.MjsBody, mass: float, pos: tuple[float, ...] | list[float], diag: list[float]
+) -> None:
+    body.explicitinertial = True
+    body.mass = mass
+    body.ipos = list(pos)
+    body.inertia = list(diag)
+
+
+class _Collision:
+    """contype/conaffinity pairs: arm parts may be told not to collide with one another."""
+
+    def __init__(self, arm_self_collision: bool) -> None:
+        self.arm = (1, 1) if arm_self_collision else (2, 1)
+        self.world = (1, 2)  # floor and plate: touch arm and objects
+        self.obj = (3, 3)
+        self.none = (0, 0)
+
+
+def _geom(
+    body: mujoco.MjsBody,
+    name: str,
+    gtype: mujoco.mjtGeom,
+    size: list[float],
+    rgba: tuple[float, ...],
+    coll: tuple[int, int],
+    **kw: object,
+) -> mujoco.MjsGeom:
+    g = body.add_geom(name=name, type=gtype, size=size, rgba=list(rgba), **kw)
+    g.contype, g.conaffinity = coll
+    return g
+
+
+def _add_continuum_joint(
+    spec: mujoco.MjSpec,
+    parent: mujoco.MjsBody,
+    j: int,
+    params: ArmParams,
+    pos: list[float],
+    quat: list[float],
+    coll: _Collision,
+) -> mujoco.MjsBody:
+    """Stack n disks under ``parent``; return the last disk."""
+    jp = params.joints[j]
+    n, h = params.n_disks, params.disk_height_m
+    disk_mass = jp.mass_kg / n
+    inertia = _cylinder_inertia(disk_mass, jp.disk_radius_m, h)
+    hinge_limit = jp.bend_limit_rad / n
+    body = parent.add_body(name=disk_body_name(j, 0), pos=pos, quat=quat)
+    for i in range(n):
+        if i > 0:
+            body = body.add_body(name=disk_body_name(j, i), pos=[0.0, 0.0, 2.0 * h])
+            for axis, vec in (("x", [1.0, 0.0, 0.0]), ("y", [0.0, 1.0, 0.0])):
+                body.add_joint(
+                    name=hinge_joint_name(j, axis, i),
+                    type=mujoco.mjtJoint.mjJNT_HINGE,
+                    axis=vec,
+                    pos=[0.0, 0.0, h],
+                    stiffness=[jp.stiffness_nm_rad * n, 0.0, 0.0],
+                    damping=[jp.damping_nms_rad * n, 0.0, 0.0],
+                    limited=mujoco.mjtLimited.mjLIMITED_TRUE,
+                    range=[-hinge_limit, hinge_limit],
+                    group=3,
+                )
+        _set_inertial(body, disk_mass, (0.0, 0.0, 0.0), inertia)
+        _geom(
+            body,
+            f"j{j}_disk{i}",
+            mujoco.mjtGeom.mjGEOM_CYLINDER,
+            [jp.disk_radius_m, h / 2.0, 0.0],
+            _ORANGE,
+            coll.arm,
+        )
+    return body
+
+
+def _add_link(
+    last_disk: mujoco.MjsBody, k: int, lp: LinkParams, h: float, coll: _Collision
+) -> mujoco.MjsBody:
+    link = last_disk.add_body(name=f"link{k}", pos=[0.0, 0.0, h / 2.0])
+    _set_inertial(link, lp.mass_kg, lp.com_m, list(lp.inertia_kgm2))
+    # A capsule stands in for the CAD mesh; kept clear of the disks it is not welded to.
+    end = np.asarray(lp.next_joint_pos_m)
+    r = lp.capsule_radius_m
+    end_short = end * (1.0 - (r + 2.0 * h) / np.linalg.norm(end))
+    _geom(
+        link,
+        f"link{k}",
+        mujoco.mjtGeom.mjGEOM_CAPSULE,
+        [r, 0.0, 0.0],
+        _GREY,
+        coll.arm,
+        fromto=[0.0, 0.0, r, *end_short.tolist()],
+    )
+    return link
+
+
+def _build_arm(spec: mujoco.MjSpec, params: ArmParams, coll: _Collision) -> mujoco.MjsBody:
+    """Base, joints, links, tendons, actuators, sensors. Returns the last disk of joint 2."""
+    h = params.disk_height_m
+    hx, hy, hz = params.base_half_size_m
+    base = spec.worldbody.add_body(
+        name="base", pos=[0.0, 0.0, hz], quat=_yaw_quat(params.base_yaw_rad)
+    )
+    _geom(base, "base", mujoco.mjtGeom.mjGEOM_BOX, [hx, hy, hz], (0.1, 0.1, 0.1, 1.0), coll.world)
+    _set_inertial(base, 0.0136, (0.0, 0.0, 0.0), [8.497e-4, 8.497e-4, 1.6992e-3])
+
+    last = _add_continuum_joint(
+        spec, base, 0, params, [0.0, 0.0, hz + h / 2.0], _yaw_quat(-params.base_yaw_rad), coll
+    )
+    for k, lp in enumerate(params.links):
+        link = _add_link(last, k, lp, h, coll)
+        last = _add_continuum_joint(
+            spec,
+            link,
+            k + 1,
+            params,
+            list(lp.next_joint_pos_m),
+            _axis_angle_quat(lp.next_joint_axis, lp.next_joint_angle_rad),
+            coll,
+        )
+    last.add_site(
+        name=EEF_SITE,
+        pos=[0.0, 0.0, params.eef_offset_disk_heights * h],
+        size=[0.01, 0.0, 0.0],
+        rgba=[0.0, 0.0, 1.0, 1.0],
+    )
+
+    for j, jp in enumerate(params.joints):
+        for axis in ("x", "y"):
+            tendon = spec.add_tendon(name=tendon_name(j, axis))
+            for i in range(1, params.n_disks):
+                tendon.wrap_joint(hinge_joint_name(j, axis, i), 1.0)
+        for axis in ("x", "y"):
+            for sign, gear in (("+", jp.moment_arm_m), ("-", -jp.moment_arm_m)):
+                act = spec.add_actuator(
+                    name=chamber_name(j, axis, sign),
+                    trntype=mujoco.mjtTrn.mjTRN_TENDON,
+                    target=tendon_name(j, axis),
+                )
+                act.set_to_cylinder(jp.time_constant_s, 0.0, jp.chamber_area_m2)
+                act.gear = [gear, 0.0, 0.0, 0.0, 0.0, 0.0]
+                act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+                act.ctrlrange = [0.0, params.max_pressure_pa]
+
+    spec.add_sensor(
+        name=EEF_VEL_SENSOR,
+        type=mujoco.mjtSensor.mjSENS_VELOCIMETER,
+        objtype=mujoco.mjtObj.mjOBJ_SITE,
+        objname=EEF_SITE,
+    )
+    sens = mujoco.mjtSensor
+    bend_sensors = ((sens.mjSENS_TENDONPOS, ""), (sens.mjSENS_TENDONVEL, "d"))
+    for stype, suffix in bend_sensors:
+        for j in range(len(params.joints)):
+            for axis, bend in (("x", "u"), ("y", "v")):
+                spec.add_sensor(
+                    name=f"{bend}{suffix}{j}",
+                    type=stype,
+                    objtype=mujoco.mjtObj.mjOBJ_TENDON,
+                    objname=tendon_name(j, axis),
+                )
+    return last
+
+
+def _add_world(spec: mujoco.MjSpec, coll: _Collision) -> None:
+    spec.add_texture(
+        name="grid",
+        type=mujoco.mjtTexture.mjTEXTURE_2D,
+        builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
+        rgb1=[0.2, 0.3, 0.4],
+        rgb2=[0.1, 0.15, 0.2],
+        width=512,
+        height=512,
+    )
+    mat = spec.add_material(name="floor", texuniform=True, texrepeat=[4.0, 4.0], reflectance=0.2)
+    mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "grid"
+    _geom(
+        spec.worldbody,
+        "floor",
+        mujoco.mjtGeom.mjGEOM_PLANE,
+        [0.0, 0.0, 0.05],
+        (1.0, 1.0, 1.0, 1.0),
+        coll.world,
+        material="floor",
+    )
+    spec.worldbody.add_light(
+        name="sun",
+        pos=[0.0, 0.0, 4.0],
+        dir=[0.0, 0.0, -1.0],
+        diffuse=[0.6, 0.6, 0.6],
+        specular=[0.2, 0.2, 0.2],
+    )
+
+
+def _add_gripper(tip: mujoco.MjsBody, params: ArmParams, coll: _Collision) -> mujoco.MjsBody:
+    """A lumped two-finger gripper at the end-effector site (frame = the site's frame)."""
+    gp = params.gripper
+    site_z = params.eef_offset_disk_heights * params.disk_height_m
+    body = tip.add_body(name=GRIPPER_BODY, pos=[0.0, 0.0, site_z])
+    m = gp.mass_kg
+    com = (gp.palm_mass_kg * gp.palm_com_m + gp.finger_mass_kg * gp.finger_com_m) / m
+    palm = _cylinder_inertia(gp.palm_mass_kg, gp.palm_radius_m, gp.palm_length_m)
+    half_sep = gp.finger_separation_m / 2.0
+    # Parallel-axis sums about the combined centre of mass (fingers as two point masses).
+    dp, df = gp.palm_com_m - com, gp.finger_com_m - com
+    ixx = palm[0] + gp.palm_mass_kg * dp**2 + gp.finger_mass_kg * (df**2 + half_sep**2)
+    iyy = palm[1] + gp.palm_mass_kg * dp**2 + gp.finger_mass_kg * df**2
+    izz = palm[2] + gp.finger_mass_kg * half_sep**2
+    _set_inertial(body, m, (0.0, 0.0, com), [ixx, iyy, izz])
+    _geom(
+        body,
+        "palm",
+        mujoco.mjtGeom.mjGEOM_CYLINDER,
+        [gp.palm_radius_m, gp.palm_length_m / 2.0, 0.0],
+        (0.15, 0.15, 0.15, 1.0),
+        coll.arm,
+        pos=[0.0, 0.0, gp.palm_length_m / 2.0],
+    )
+    finger_len = 2.0 * (gp.finger_com_m - gp.palm_length_m)
+    for side, x in (("left", -half_sep), ("right", half_sep)):
+        _geom(
+            body,
+            f"{side}_finger",
+            mujoco.mjtGeom.mjGEOM_BOX,
+            [0.008, 0.012, finger_len / 2.0],
+            (0.3, 0.3, 0.3, 1.0),
+            coll.none,
+            pos=[x, 0.0, gp.palm_length_m + finger_len / 2.0],
+        )
+    return body
+
+
+def _add_cube(
+    spec: mujoco.MjSpec, params: ArmParams, pos: np.ndarray, quat: np.ndarray, coll: _Collision
+) -> None:
+    cp = params.cube
+    body = spec.worldbody.add_body(name=CUBE_BODY, pos=pos.tolist(), quat=quat.tolist())
+    body.add_freejoint(name="cube_free")
+    half = cp.side_m / 2.0
+    i = cp.mass_kg * cp.side_m**2 / 6.0
+    _set_inertial(body, cp.mass_kg, (0.0, 0.0, 0.0), [i, i, i])
+    _geom(body, CUBE_BODY, mujoco.mjtGeom.mjGEOM_BOX, [half] * 3, (0.2, 0.7, 0.0, 1.0), coll.obj)
+    spec.add_exclude(bodyname1=GRIPPER_BODY, bodyname2=CUBE_BODY)
+    weld = spec.add_equality(
+        name=GRIP_WELD,
+        type=mujoco.mjtEq.mjEQ_WELD,
+        objtype=mujoco.mjtObj.mjOBJ_BODY,
+        name1=GRIPPER_BODY,
+        name2=CUBE_BODY,
+    )
+    # anchor, relpos, relquat = 0 (take the relative pose from qpos0), torquescale = 1
+    weld.data = [0.0] * 10 + [1.0] + [0.0] * (len(weld.data) - 11)
+
+
+def _add_hammer(tip: mujoco.MjsBody, params: ArmParams, coll: _Collision) -> None:
+    hp = params.hammer
+    site_z = params.eef_offset_disk_heights * params.disk_height_m
+    body = tip.add_body(name=HAMMER_BODY, pos=[0.0, 0.0, site_z + hp.radius_m])
+    i = 0.4 * hp.mass_kg * hp.radius_m**2
+    _set_inertial(body, hp.mass_kg, (0.0, 0.0, 0.0), [i, i, i])
+    _geom(
+        body,
+        HAMMER_BODY,
+        mujoco.mjtGeom.mjGEOM_SPHERE,
+        [hp.radius_m, 0.0, 0.0],
+        (0.2, 0.7, 0.0, 1.0),
+        coll.obj,
+    )
+
+
+def _add_plate(spec: mujoco.MjSpec, params: ArmParams, coll: _Collision) -> None:
+    pp = params.plate
+    r, half_t = pp.diameter_m / 2.0, pp.thickness_m / 2.0
+    cx, cy, cz = pp.centre_m
+    body = spec.worldbody.add_body(name="plate", pos=[cx, cy, cz + half_t])
+    _geom(
+        body,
+        "plate",
+        mujoco.mjtGeom.mjGEOM_CYLINDER,
+        [r, half_t, 0.0],
+        (1.0, 0.0, 0.0, 1.0),
+        coll.world,
+    )
+    body.add_site(
+        name="plate_touch",
+        type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+        size=[1.01 * r, 1.01 * half_t, 0.0],
+        rgba=[1.0, 0.0, 0.0, 0.1],
+    )
+    spec.add_sensor(
+        name=PLATE_SENSOR,
+        type=mujoco.mjtSensor.mjSENS_TOUCH,
+        objtype=mujoco.mjtObj.mjOBJ_SITE,
+        objname="plate_touch",
+    )
+
+
+def effective_params(preset: str | Preset, params: ArmParams | None) -> ArmParams:
+    """The ArmParams a preset actually builds (a preset may fix the disk count)."""
+    p = get_preset(preset)
+    params = params if params is not None else ArmParams()
+    if not isinstance(params, ArmParams):
+        raise ValueError(f"params must be an ArmParams, got {type(params).__name__}")
+    if p.n_disks is not None and p.n_disks != params.n_disks:
+        params = replace(params, n_disks=p.n_disks)
+    return params
+
+
+def build_spec(
+    task: str, preset: str | Preset = "reference", params: ArmParams | None = None
+) -> mujoco.MjSpec:
+    """An MjSpec of the arm in ``task``'s scene with ``preset``'s physics options."""
+    check_task(task)
+    p = get_preset(preset)
+    params = effective_params(p, params)
+    coll = _Collision(p.arm_self_collision)
+
+    spec = mujoco.MjSpec()
+    spec.modelname = f"handful_{task}_{p.name}"
+    spec.compiler.degree = False
+    spec.compiler.autolimits = True
+    p.apply(spec.option)
+    spec.option.gravity = list(params.gravity_m_s2)
+    spec.visual.global_.offwidth = 1280
+    spec.visual.global_.offheight = 720
+
+    _add_world(spec, coll)
+    tip = _build_arm(spec, params, coll)
+    if task == "hammer":
+        _add_hammer(tip, params, coll)
+        _add_plate(spec, params, coll)
+    elif task == "throw":
+        _add_gripper(tip, params, coll)
+        # The cube starts between the pads: place it where the gripper holds it at qpos0.
+        model = spec.compile()
+        data = mujoco.MjData(model)
+        mujoco.mj_kinematics(model, data)
+        sid = model.site(EEF_SITE).id
+        rot = data.site_xmat[sid].reshape(3, 3)
+        pos = data.site_xpos[sid] + rot @ np.array([0.0, 0.0, params.cube.hold_offset_m])
+        quat = np.zeros(4)
+        mujoco.mju_mat2Quat(quat, rot.ravel())
+        _add_cube(spec, params, pos, quat, coll)
+    return spec
+
+
+def build_model(
+    task: str, preset: str | Preset = "reference", params: ArmParams | None = None
+) -> mujoco.MjModel:
+    """The compiled model of the arm in ``task``'s scene (see module docstring)."""
+    return build_spec(task, preset, params).compile()
+
+
+def export_xml(
+    task: str,
+    path: str | Path | None = None,
+    *,
+    preset: str | Preset = "reference",
+    params: ArmParams | None = None,
+) -> str:
+    """MJCF of the compiled model (open it in MuJoCo's viewer); also written to ``path``."""
+    spec = build_spec(task, preset, params)
+    spec.compile()
+    xml = spec.to_xml()
+    if path is not None:
+        Path(path).write_text(xml)
+    return xml

@@ -1,0 +1,215 @@
+"""Typed parameters of the simulated arm and its tip loads; defaults are the facts in ROBOT.md.
+
+Lengths m, masses kg, angles rad, stiffness N·m/rad, damping N·m·s/rad, pressures Pa, time s.
+Parameters are frozen dataclasses: change one with ``dataclasses.replace``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+PSI_TO_PA_PUBLISHED = 6895.0  # the published simulator's psi→Pa factor (40 psi = 275.8 kPa)
+
+
+@dataclass(frozen=True)
+class ContinuumJointParams:
+    """One continuum ("bellows") joint: a stack of disks, its lumped spring/damper and chambers.
+
+    Attributes:
+        disk_radius_m: radius of each disk (m).
+        mass_kg: mass of all disks together (kg).
+        stiffness_nm_rad: lumped bending stiffness of the whole joint (N·m/rad).
+        damping_nms_rad: lumped bending damping of the whole joint (N·m·s/rad).
+        bend_limit_rad: the joint's bend limit; each hinge gets ``bend_limit_rad / n_disks``.
+        chamber_diameter_m: diameter of the equivalent cylinder of one chamber (m).
+        moment_arm_m: distance from the joint's axis to a chamber's centre (gear, m).
+        time_constant_s: first-order time constant of a chamber's pressure (s).
+    """
+
+    disk_radius_m: float
+    mass_kg: float
+    stiffness_nm_rad: float
+    damping_nms_rad: float
+    bend_limit_rad: float
+    chamber_diameter_m: float
+    moment_arm_m: float
+    time_constant_s: float
+
+    @property
+    def chamber_area_m2(self) -> float:
+        """Area of one chamber's cylinder (m²): force (N) = area × pressure state (Pa)."""
+        return math.pi * self.chamber_diameter_m**2 / 4.0
+
+
+@dataclass(frozen=True)
+class LinkParams:
+    """A rigid link between two continuum joints, and where the next joint's first disk sits.
+
+    Attributes:
+        mass_kg: link mass (kg).
+        com_m: centre of mass in the link frame (m); the link frame sits h/2 above the
+            centre of the last disk below it (the disk's top face).
+        inertia_kgm2: diagonal inertia about the centre of mass (kg·m²).
+        next_joint_pos_m: position of the next joint's first disk in the link frame (m).
+        next_joint_axis: axis of the next joint's first-disk rotation (unnormalised).
+        next_joint_angle_rad: rotation angle about that axis (rad).
+        capsule_radius_m: radius of the capsule standing in for the link's CAD mesh (m).
+    """
+
+    mass_kg: float
+    com_m: tuple[float, float, float]
+    inertia_kgm2: tuple[float, float, float]
+    next_joint_pos_m: tuple[float, float, float]
+    next_joint_axis: tuple[float, float, float]
+    next_joint_angle_rad: float
+    capsule_radius_m: float = 0.06
+
+
+@dataclass(frozen=True)
+class GripperParams:
+    """The two-finger gripper used for throwing, lumped as a palm and a pair of fingers.
+
+    Offsets are along the tip's z axis, measured from the end-effector site (m).
+    """
+
+    palm_mass_kg: float = 0.78
+    palm_com_m: float = 0.035
+    palm_radius_m: float = 0.045
+    palm_length_m: float = 0.07
+    finger_mass_kg: float = 0.12
+    finger_com_m: float = 0.11
+    finger_separation_m: float = 0.06
+
+    @property
+    def mass_kg(self) -> float:
+        """Whole gripper mass (kg)."""
+        return self.palm_mass_kg + self.finger_mass_kg
+
+
+@dataclass(frozen=True)
+class CubeParams:
+    """The thrown cube: held ``hold_offset_m`` beyond the tip by the gripper's pads."""
+
+    mass_kg: float = 0.25
+    side_m: float = 0.05
+    hold_offset_m: float = 0.14
+
+
+@dataclass(frozen=True)
+class HammerParams:
+    """The hammer: a ball centred one radius beyond the tip."""
+
+    mass_kg: float = 2.0
+    radius_m: float = 0.08
+
+
+@dataclass(frozen=True)
+class ForcePlateParams:
+    """A round force plate lying on the floor; it registers a hit at ``hit_threshold_n``."""
+
+    centre_m: tuple[float, float, float] = (-0.5, 0.5, 0.0)
+    diameter_m: float = 0.5
+    thickness_m: float = 0.02
+    hit_threshold_n: float = 5.0
+
+
+def _joint(
+    radius: float,
+    mass: float,
+    k: float,
+    c: float,
+    limit_deg: float,
+    diameter: float,
+    arm: float,
+    tau: float,
+) -> ContinuumJointParams:
+    return ContinuumJointParams(
+        disk_radius_m=radius,
+        mass_kg=mass,
+        stiffness_nm_rad=k,
+        damping_nms_rad=c,
+        bend_limit_rad=math.radians(limit_deg),
+        chamber_diameter_m=diameter,
+        moment_arm_m=arm,
+        time_constant_s=tau,
+    )
+
+
+def _default_joints() -> tuple[ContinuumJointParams, ...]:
+    return (
+        _joint(0.125, 2.653, 136.0, 7.5, 50.0, 0.05 * math.sqrt(2.0), 0.10, 0.2),
+        _joint(0.08, 1.326, 27.0, 2.0, 90.0, 0.05, 0.05, 0.5),
+        _joint(0.08, 1.326, 27.0, 2.0, 90.0, 0.05, 0.05, 0.8),
+    )
+
+
+def _default_links() -> tuple[LinkParams, ...]:
+    return (
+        LinkParams(
+            mass_kg=3.881,
+            com_m=(0.0, 0.0, 0.115),
+            inertia_kgm2=(0.108, 0.108, 0.023),
+            next_joint_pos_m=(-0.0223, 0.0223, 0.282),
+            next_joint_axis=(1.0, 1.0, 0.0),
+            next_joint_angle_rad=math.radians(-45.0),
+        ),
+        LinkParams(
+            mass_kg=3.474,
+            com_m=(-0.07, 0.07, 0.13),
+            inertia_kgm2=(0.05, 0.05, 0.017),
+            next_joint_pos_m=(-0.103, 0.103, 0.190),
+            next_joint_axis=(1.0, 1.0, 0.0),
+            next_joint_angle_rad=math.radians(-45.0),
+        ),
+    )
+
+
+@dataclass(frozen=True)
+class ArmParams:
+    """Everything the simulated arm is built from (defaults: ROBOT.md / the published simulator).
+
+    Attributes:
+        n_disks: disks per continuum joint (reference: 10); n_disks − 1 universal joints each.
+        joint_height_m: endplate-to-endplate height of a continuum joint (m).
+        joints: the three continuum joints, base first.
+        links: the two rigid links (link 0 between joints 0 and 1, link 1 between 1 and 2).
+        base_half_size_m: half-sizes of the base box (m); centred at z = half height, turned.
+        base_yaw_rad: the base box's turn about z (rad); joint 0's first disk is turned back.
+        max_pressure_pa: top of every chamber's command range (Pa); 40 psi.
+        gravity_m_s2: gravity vector (m/s²); set (0, 0, 0) to switch it off.
+        eef_offset_disk_heights: end-effector site height above the last disk, in disk heights.
+        gripper, cube, hammer, plate: tip loads and scene objects of the tasks.
+    """
+
+    n_disks: int = 10
+    joint_height_m: float = 0.2
+    joints: tuple[ContinuumJointParams, ...] = field(default_factory=_default_joints)
+    links: tuple[LinkParams, ...] = field(default_factory=_default_links)
+    base_half_size_m: tuple[float, float, float] = (0.19685, 0.19685, 0.14)
+    base_yaw_rad: float = math.radians(45.0)
+    max_pressure_pa: float = 40.0 * PSI_TO_PA_PUBLISHED
+    gravity_m_s2: tuple[float, float, float] = (0.0, 0.0, -9.81)
+    eef_offset_disk_heights: float = 1.5
+    gripper: GripperParams = field(default_factory=GripperParams)
+    cube: CubeParams = field(default_factory=CubeParams)
+    hammer: HammerParams = field(default_factory=HammerParams)
+    plate: ForcePlateParams = field(default_factory=ForcePlateParams)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.n_disks, int) or self.n_disks < 2:
+            raise ValueError(f"n_disks must be an integer ≥ 2, got {self.n_disks!r}")
+        if len(self.joints) != 3 or len(self.links) != 2:
+            raise ValueError("the arm has exactly 3 continuum joints and 2 links")
+        if self.joint_height_m <= 0 or self.max_pressure_pa <= 0:
+            raise ValueError("joint_height_m and max_pressure_pa must be > 0")
+
+    @property
+    def disk_height_m(self) -> float:
+        """h = joint height / (2·n_disks − 1): disks and gaps alternate, each h tall (m)."""
+        return self.joint_height_m / (2 * self.n_disks - 1)
+
+    @property
+    def n_hinges_per_joint(self) -> int:
+        """Universal joints per continuum joint: one between each pair of adjacent disks."""
+        return self.n_disks - 1

@@ -1,0 +1,105 @@
+"""Fidelity presets: physics options (and optionally disk count) for the same arm."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+
+
+@dataclass(frozen=True)
+class Preset:
+    """Physics options of one fidelity level.
+
+    Attributes:
+        name: preset name.
+        timestep_s: physics step (s); 10 ms (the 100 Hz grid) must be a whole number of steps.
+        integrator: "euler" or "implicitfast".
+        solver: "newton" or "cg".
+        iterations: constraint-solver iterations.
+        tolerance: constraint-solver tolerance.
+        ls_iterations: line-search iterations.
+        cone: friction cone, "elliptic" or "pyramidal".
+        jacobian: "dense", "sparse" or "auto".
+        n_disks: disks per continuum joint, or None to take ``ArmParams.n_disks``.
+        arm_self_collision: whether arm parts (disks, links) collide with one another.
+    """
+
+    name: str
+    timestep_s: float
+    integrator: str
+    solver: str
+    iterations: int
+    tolerance: float
+    ls_iterations: int
+    cone: str
+    jacobian: str
+    n_disks: int | None = None
+    arm_self_collision: bool = True
+
+    def apply(self, option: mujoco.MjOption | object) -> None:
+        """Write these options onto a spec's or model's ``option``."""
+        option.timestep = self.timestep_s
+        option.integrator = _INTEGRATORS[self.integrator]
+        option.solver = _SOLVERS[self.solver]
+        option.iterations = self.iterations
+        option.tolerance = self.tolerance
+        option.ls_iterations = self.ls_iterations
+        option.cone = _CONES[self.cone]
+        option.jacobian = _JACOBIANS[self.jacobian]
+
+
+_INTEGRATORS = {
+    "euler": mujoco.mjtIntegrator.mjINT_EULER,
+    "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
+    "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT,
+    "rk4": mujoco.mjtIntegrator.mjINT_RK4,
+}
+_SOLVERS = {"newton": mujoco.mjtSolver.mjSOL_NEWTON, "cg": mujoco.mjtSolver.mjSOL_CG}
+_CONES = {"elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC, "pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL}
+_JACOBIANS = {
+    "dense": mujoco.mjtJacobian.mjJAC_DENSE,
+    "sparse": mujoco.mjtJacobian.mjJAC_SPARSE,
+    "auto": mujoco.mjtJacobian.mjJAC_AUTO,
+}
+
+# The published simulator's options: 1 ms, (semi-implicit) Euler, Newton, 50 iterations, 1e-10.
+REFERENCE = Preset(
+    name="reference",
+    timestep_s=1e-3,
+    integrator="euler",
+    solver="newton",
+    iterations=50,
+    tolerance=1e-10,
+    ls_iterations=50,
+    cone="elliptic",
+    jacobian="sparse",
+)
+
+# Same arm (10 disks: fewer disks change the geometry), a larger step with implicitfast and a
+# loose solver. Checked against REFERENCE by `handful bench sim` (docs/bench/sim.md).
+FAST = Preset(
+    name="fast",
+    timestep_s=5e-3,
+    integrator="implicitfast",
+    solver="newton",
+    iterations=8,
+    tolerance=1e-6,
+    ls_iterations=8,
+    cone="pyramidal",
+    jacobian="dense",
+)
+
+PRESETS: dict[str, Preset] = {p.name: p for p in (REFERENCE, FAST)}
+
+
+def get_preset(preset: str | Preset) -> Preset:
+    """A preset by name (or itself); ValueError naming the choices if unknown."""
+    if isinstance(preset, Preset):
+        return preset
+    try:
+        return PRESETS[preset]
+    except (KeyError, TypeError):
+        raise ValueError(
+            f"unknown preset {preset!r}; choose one of {', '.join(sorted(PRESETS))}"
+        ) from None
