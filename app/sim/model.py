@@ -33,6 +33,10 @@ HAMMER_BODY = "hammer"
 GRIPPER_BODY = "gripper"
 PLATE_SENSOR = "plate_force"
 EEF_VEL_SENSOR = "eef_vel"
+EEF_POS_SENSOR = "eef_pos"
+EEF_LINVEL_SENSOR = "eef_linvel"
+OBJECT_POS_SENSOR = "object_pos"
+OBJECT_LINVEL_SENSOR = "object_linvel"
 
 _ORANGE = (0.8, 0.2, 0.1, 1.0)
 _GREY = (0.5, 0.5, 0.5, 1.0)
@@ -233,6 +237,11 @@ def _build_arm(spec: mujoco.MjSpec, params: ArmParams, coll: _Collision) -> mujo
         objname=EEF_SITE,
     )
     sens = mujoco.mjtSensor
+    for sname, stype in (
+        (EEF_POS_SENSOR, sens.mjSENS_FRAMEPOS),
+        (EEF_LINVEL_SENSOR, sens.mjSENS_FRAMELINVEL),
+    ):
+        spec.add_sensor(name=sname, type=stype, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=EEF_SITE)
     bend_sensors = ((sens.mjSENS_TENDONPOS, ""), (sens.mjSENS_TENDONVEL, "d"))
     for stype, suffix in bend_sensors:
         for j in range(len(params.joints)):
@@ -244,6 +253,16 @@ def _build_arm(spec: mujoco.MjSpec, params: ArmParams, coll: _Collision) -> mujo
                     objname=tendon_name(j, axis),
                 )
     return last
+
+
+def _add_object_sensors(spec: mujoco.MjSpec, body: str) -> None:
+    """World-frame position and linear velocity of a task object's centre."""
+    sens = mujoco.mjtSensor
+    for sname, stype in (
+        (OBJECT_POS_SENSOR, sens.mjSENS_FRAMEPOS),
+        (OBJECT_LINVEL_SENSOR, sens.mjSENS_FRAMELINVEL),
+    ):
+        spec.add_sensor(name=sname, type=stype, objtype=mujoco.mjtObj.mjOBJ_XBODY, objname=body)
 
 
 def _add_world(spec: mujoco.MjSpec, coll: _Collision) -> None:
@@ -413,6 +432,7 @@ def build_spec(
     if task == "hammer":
         _add_hammer(tip, params, coll)
         _add_plate(spec, params, coll)
+        _add_object_sensors(spec, HAMMER_BODY)
     elif task == "throw":
         _add_gripper(tip, params, coll)
         # The cube starts between the pads: place it where the gripper holds it at qpos0.
@@ -425,6 +445,7 @@ def build_spec(
         quat = np.zeros(4)
         mujoco.mju_mat2Quat(quat, rot.ravel())
         _add_cube(spec, params, pos, quat, coll)
+        _add_object_sensors(spec, CUBE_BODY)
     return spec
 
 

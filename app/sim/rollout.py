@@ -1,10 +1,10 @@
 """One episode: a pressure schedule in, a trajectory record and the task objective out.
 
 Stepping happens in C: ``mujoco.mj_step(model, data, nstep=k)`` runs between sampling points
-(the recording grid, the fixed 100 Hz objective grid and the control-step ends); Python only
-reads the state at those points. At each point the kinematics of the *current* state are
-recomputed (``mj_kinematics``, ``mj_comPos``, ``mj_comVel``), which costs far less than a step
-and leaves the dynamics untouched, so results do not depend on ``record_hz``.
+(the recording grid, the fixed 100 Hz objective grid and the control-step ends), split as
+``mj_step2`` / ``mj_step`` / ``mj_step1`` so that the sensors (world-frame tip and object
+position and velocity) describe the state exactly at each point; Python only copies arrays
+there. The dynamics are the same whatever ``record_hz`` is.
 
 Objectives (ROBOT.md), with H control steps of 5 s / H each:
 
@@ -34,9 +34,12 @@ import numpy as np
 from app.policy import EPISODE_S, PolicyError, check_schedule
 from app.sim.model import (
     CUBE_BODY,
-    EEF_SITE,
+    EEF_LINVEL_SENSOR,
+    EEF_POS_SENSOR,
     GRIP_WELD,
     HAMMER_BODY,
+    OBJECT_LINVEL_SENSOR,
+    OBJECT_POS_SENSOR,
     PLATE_SENSOR,
     build_model,
     check_task,
@@ -183,15 +186,22 @@ def _cached_model(task: str, preset: Preset, params: ArmParams) -> mujoco.MjMode
 
 @dataclass(frozen=True)
 class _Layout:
-    """Indices into the model that a rollout reads."""
+    """Addresses in the model that a rollout reads (sensor addresses are −1 when absent)."""
 
-    eef_site: int
-    object_body: int  # -1 when none
-    weld: int  # -1 when none
-    plate_sensor_adr: int  # -1 when none
-    hinge_qposadr: np.ndarray  # (3, 2, n-1)
-    hinge_limit: np.ndarray  # (3, 2, n-1)
+    eef_pos: int
+    eef_linvel: int
+    object_pos: int
+    object_linvel: int
+    plate: int
+    weld: int
+    hinge_qposadr: np.ndarray  # (3, 2, n−1)
+    hinge_limit: np.ndarray  # (3, 2, n−1)
     object_mass_kg: float
+
+
+def _sensor_adr(model: mujoco.MjModel, name: str) -> int:
+    sid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, name)
+    return int(model.sensor_adr[sid]) if sid >= 0 else -1
 
 
 def _layout(model: mujoco.MjModel, task: str, params: ArmParams) -> _Layout:
@@ -205,17 +215,16 @@ def _layout(model: mujoco.MjModel, task: str, params: ArmParams) -> _Layout:
                 adr[j, a, i - 1] = model.jnt_qposadr[jid]
                 lim[j, a, i - 1] = model.jnt_range[jid, 1]
     obj_body = {"throw": CUBE_BODY, "hammer": HAMMER_BODY}.get(task)
-    obj_id = model.body(obj_body).id if obj_body else -1
     return _Layout(
-        eef_site=model.site(EEF_SITE).id,
-        object_body=obj_id,
+        eef_pos=_sensor_adr(model, EEF_POS_SENSOR),
+        eef_linvel=_sensor_adr(model, EEF_LINVEL_SENSOR),
+        object_pos=_sensor_adr(model, OBJECT_POS_SENSOR),
+        object_linvel=_sensor_adr(model, OBJECT_LINVEL_SENSOR),
+        plate=_sensor_adr(model, PLATE_SENSOR),
         weld=model.equality(GRIP_WELD).id if task == "throw" else -1,
-        plate_sensor_adr=int(model.sensor_adr[model.sensor(PLATE_SENSOR).id])
-        if task == "hammer"
-        else -1,
         hinge_qposadr=adr,
         hinge_limit=lim,
-        object_mass_kg=float(model.body_mass[obj_id]) if obj_id >= 0 else 0.0,
+        object_mass_kg=float(model.body(obj_body).mass[0]) if obj_body else 0.0,
     )
 
 
@@ -325,50 +334,46 @@ def _simulate(
 
     data = mujoco.MjData(model)
     qpos = np.empty((n_pts, model.nq))
-    tip_pos = np.empty((n_pts, 3))
-    tip_vel = np.empty((n_pts, 3))
-    obj_pos = np.zeros((n_pts, 3))
-    obj_vel = np.zeros((n_pts, 3))
-    plate = np.zeros(n_pts)
     act = np.empty((n_pts, model.na))
-    vel6 = np.empty(6)
-
-    site, body, sensor = lay.eef_site, lay.object_body, lay.plate_sensor_adr
-    kin, com_pos, com_vel, obj_velocity = (
-        mujoco.mj_kinematics,
-        mujoco.mj_comPos,
-        mujoco.mj_comVel,
-        mujoco.mj_objectVelocity,
-    )
-    site_type, body_type = mujoco.mjtObj.mjOBJ_SITE, mujoco.mjtObj.mjOBJ_BODY
+    sensors = np.empty((n_pts, model.nsensordata))
+    step, step1, step2 = mujoco.mj_step, mujoco.mj_step1, mujoco.mj_step2
     warn = data.warning
     name = p.name
 
+    # mj_step1 computes position/velocity quantities and sensors of the current state; the
+    # following mj_step2 finishes that physics step. So every sample reads the state exactly
+    # at its time at no extra cost (acceleration-stage sensors, the plate's touch reading,
+    # come from the last completed step).
     data.ctrl[:] = schedule[0]
+    step1(model, data)
+    prev = 0
     for idx, k in enumerate(points):
         if k > 0:
-            mujoco.mj_step(model, data, k - points[idx - 1])
+            step2(model, data)
+            if k - prev > 1:
+                step(model, data, k - prev - 1)
+            step1(model, data)
+            prev = k
             if any(warn[w].number for w in _BAD_WARNINGS):
                 raise _diverged(task, name, k * dt, "MuJoCo reported an unstable state")
-        kin(model, data)
-        com_pos(model, data)
-        com_vel(model, data)
         qpos[idx] = data.qpos
         act[idx] = data.act
-        tip_pos[idx] = data.site_xpos[site]
-        obj_velocity(model, data, site_type, site, vel6, 0)
-        tip_vel[idx] = vel6[3:]
-        if body >= 0:
-            obj_pos[idx] = data.xpos[body]
-            obj_velocity(model, data, body_type, body, vel6, 0)
-            obj_vel[idx] = vel6[3:]
-        if sensor >= 0:
-            plate[idx] = data.sensordata[sensor]
+        sensors[idx] = data.sensordata
         if k % n_ctrl == 0 and k < n_total:
-            step = k // n_ctrl  # control steps completed so far
-            data.ctrl[:] = schedule[step]
-            if release is not None and step == release:
+            done = k // n_ctrl  # control steps completed so far
+            data.ctrl[:] = schedule[done]
+            if release is not None and done == release:
                 data.eq_active[lay.weld] = 0
+                step1(model, data)  # rebuild the constraints without the weld
+
+    tip_pos = sensors[:, lay.eef_pos : lay.eef_pos + 3]
+    tip_vel = sensors[:, lay.eef_linvel : lay.eef_linvel + 3]
+    if lay.object_pos >= 0:
+        obj_pos = sensors[:, lay.object_pos : lay.object_pos + 3]
+        obj_vel = sensors[:, lay.object_linvel : lay.object_linvel + 3]
+    else:
+        obj_pos = obj_vel = np.zeros((n_pts, 3))
+    plate = sensors[:, lay.plate] if lay.plate >= 0 else np.zeros(n_pts)
 
     # The release at the very end of the last step changes nothing within the episode.
     for arr, what in ((qpos, "positions"), (tip_vel, "tip velocity"), (obj_pos, "object")):
