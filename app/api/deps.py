@@ -1,0 +1,110 @@
+"""Dependencies shared by the routes: settings, sessions, the caller and role checks."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from typing import Annotated
+
+from fastapi import Depends, Request
+from sqlalchemy.orm import Session
+
+from app.config import Settings
+from app.db.session import Database
+from app.service import auth
+from app.service.auth import OPERATOR, VIEWER, WORKER, Actor
+from app.service.errors import Forbidden, Unauthorized
+from app.service.runs import PreviewRunner
+
+
+def get_settings(request: Request) -> Settings:
+    return request.app.state.settings
+
+
+def get_db(request: Request) -> Database:
+    return request.app.state.db
+
+
+def get_previews(request: Request) -> PreviewRunner:
+    return request.app.state.previews
+
+
+def read_session(db: Annotated[Database, Depends(get_db)]) -> Iterator[Session]:
+    """A read-only session (rolled back at the end)."""
+    with db.read() as s:
+        yield s
+
+
+def write_session(db: Annotated[Database, Depends(get_db)]) -> Iterator[Session]:
+    """A session holding the write lock; the service function commits its own work."""
+    with db.write() as s:
+        yield s
+
+
+SettingsDep = Annotated[Settings, Depends(get_settings)]
+DbDep = Annotated[Database, Depends(get_db)]
+ReadSession = Annotated[Session, Depends(read_session)]
+WriteSession = Annotated[Session, Depends(write_session)]
+PreviewsDep = Annotated[PreviewRunner, Depends(get_previews)]
+
+ANONYMOUS = Actor("anonymous", VIEWER)
+
+
+def _bearer(request: Request) -> str | None:
+    header = request.headers.get("authorization")
+    if not header:
+        return None
+    scheme, _, token = header.partition(" ")
+    if scheme.lower() != "bearer" or not token.strip():
+        raise Unauthorized("the Authorization header must be 'Bearer <token>'")
+    return token.strip()
+
+
+def current_actor(request: Request) -> Actor | None:
+    """The caller, or None when no token was sent (Unauthorized for a bad token)."""
+    token = _bearer(request)
+    if token is None:
+        return None
+    db: Database = request.app.state.db
+    with db.read() as s:
+        return auth.authenticate(s, token)
+
+
+def require(*roles: str, what: str) -> Callable[..., Actor]:
+    """A dependency that lets only ``roles`` through: 401 without a token, 403 otherwise."""
+
+    def dependency(request: Request) -> Actor:
+        actor = current_actor(request)
+        if actor is None:
+            raise Unauthorized(f"a token is required to {what} (Authorization: Bearer <token>)")
+        if actor.role not in roles:
+            raise Forbidden(f"role {actor.role!r} may not {what}; needs {' or '.join(roles)}")
+        return actor
+
+    return dependency
+
+
+def reader(request: Request) -> Actor:
+    """Reads: operators and viewers (anyone when settings.public_read); never worker tokens."""
+    actor = current_actor(request)
+    if actor is None:
+        if request.app.state.settings.public_read:
+            return ANONYMOUS
+        raise Unauthorized("a token is required to read (Authorization: Bearer <token>)")
+    if actor.role not in (OPERATOR, VIEWER):
+        raise Forbidden(f"role {actor.role!r} may only claim, heartbeat and report results")
+    return actor
+
+
+def any_user(request: Request) -> Actor:
+    actor = current_actor(request)
+    if actor is None:
+        raise Unauthorized("a token is required (Authorization: Bearer <token>)")
+    return actor
+
+
+Reader = Annotated[Actor, Depends(reader)]
+AnyUser = Annotated[Actor, Depends(any_user)]
+Operator = Annotated[Actor, Depends(require(OPERATOR, what="change anything"))]
+WorkerOrOperator = Annotated[
+    Actor, Depends(require(WORKER, OPERATOR, what="claim, heartbeat or report trials"))
+]

@@ -1,0 +1,125 @@
+"""The FastAPI app factory: ``create_app(settings)``; OpenAPI at /docs, health at /health."""
+
+from __future__ import annotations
+
+import asyncio
+import inspect
+import logging
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager, suppress
+from importlib.metadata import PackageNotFoundError
+from importlib.metadata import version as _pkg_version
+from typing import Any
+
+from fastapi import FastAPI
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import JSONResponse
+from sqlalchemy import text
+
+from app.api import errors
+from app.api.limits import BodySizeLimit
+from app.api.routes import auth, experiments, trials, workers
+from app.config import Settings
+from app.db.session import Database
+from app.service.leases import sweep_expired
+from app.service.runs import PreviewRunner
+
+log = logging.getLogger("handful.api")
+
+try:
+    VERSION = _pkg_version("handful")
+except PackageNotFoundError:  # running from a source tree
+    VERSION = "0.0.0"
+
+
+async def _call(hook: Callable[..., Any], app: FastAPI) -> None:
+    params = inspect.signature(hook).parameters
+    result = hook(app) if params else hook()
+    if inspect.isawaitable(result):
+        await result
+
+
+async def _sweep_forever(app: FastAPI) -> None:
+    """Expire lost leases every ``lease_sweep_interval_s`` even when no worker calls in."""
+    settings: Settings = app.state.settings
+    db: Database = app.state.db
+
+    def sweep() -> int:
+        with db.write() as s:
+            return sweep_expired(s, max_attempts=settings.max_attempts)
+
+    while True:
+        await asyncio.sleep(settings.lease_sweep_interval_s)
+        try:
+            n = await run_in_threadpool(sweep)
+            if n:
+                log.info("expired %d lease(s)", n)
+        except Exception:  # keep sweeping; the next round retries
+            log.exception("lease sweep failed")
+
+
+@asynccontextmanager
+async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
+    for hook in list(app.state.startup_hooks):
+        await _call(hook, app)
+    sweeper = asyncio.create_task(_sweep_forever(app))
+    try:
+        yield
+    finally:
+        sweeper.cancel()
+        with suppress(asyncio.CancelledError):
+            await sweeper
+        for hook in list(app.state.shutdown_hooks):
+            try:
+                await _call(hook, app)
+            except Exception:
+                log.exception("shutdown hook %r failed", hook)
+        app.state.previews.shutdown()
+        app.state.db.dispose()
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """Build the app over an already-migrated database (``handful serve`` migrates first).
+
+    ``app.state`` holds ``settings``, ``db`` (Database), ``previews`` (PreviewRunner) and
+    ``startup_hooks`` / ``shutdown_hooks``: callables (sync or async, taking the app or
+    nothing) run by the lifespan; app.dashboard registers its own there.
+    """
+    settings = settings or Settings()
+    settings.artifacts_dir.mkdir(parents=True, exist_ok=True)
+    app = FastAPI(
+        title="handful",
+        version=VERSION,
+        summary="Trial service: BayesOpt with a person in the loop for a pneumatic soft arm.",
+        lifespan=_lifespan,
+    )
+    app.state.settings = settings
+    app.state.db = Database(settings.db_url)
+    app.state.previews = PreviewRunner(settings.preview.workers, settings.preview.max_jobs)
+    app.state.startup_hooks = []
+    app.state.shutdown_hooks = []
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
+    errors.install(app)
+    for module in (auth, experiments, trials, workers):
+        app.include_router(module.router, prefix="/api")
+
+    @app.get("/health", tags=["health"])
+    def health() -> JSONResponse:
+        """Liveness and database check: ``{status, db, version}``."""
+        try:
+            with app.state.db.read() as s:
+                s.execute(text("SELECT 1"))
+            return JSONResponse({"status": "ok", "db": "ok", "version": VERSION})
+        except Exception as exc:
+            return JSONResponse(
+                {"status": "error", "db": f"error: {exc}", "version": VERSION}, status_code=503
+            )
+
+    if settings.dashboard_enabled:
+        try:
+            from app.dashboard import mount_dashboard
+        except ImportError as exc:
+            log.warning("dashboard not mounted: %s", exc)
+        else:
+            mount_dashboard(app, settings)
+    return app

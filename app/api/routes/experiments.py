@@ -1,0 +1,175 @@
+"""Experiments: create, list, read, change; suggest, attach, export, import, model, version."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from collections.abc import AsyncIterator
+from typing import Literal
+
+from fastapi import APIRouter, Query, Request
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import PlainTextResponse, StreamingResponse
+from sqlalchemy import select
+
+from app.api.deps import DbDep, Operator, Reader, ReadSession, WriteSession
+from app.db.models import AuditLog
+from app.service import data, experiments, trials
+from app.service.errors import NotFound
+from app.service.schemas import (
+    AttachIn,
+    AuditRead,
+    ExperimentCreate,
+    ExperimentPatch,
+    ExperimentRead,
+    ImportIn,
+    ModelRead,
+    SuggestIn,
+    TrialRead,
+    VersionRead,
+)
+
+router = APIRouter(prefix="/experiments", tags=["experiments"])
+
+
+@router.post("", status_code=201)
+def create_experiment(
+    body: ExperimentCreate, session: WriteSession, actor: Operator
+) -> ExperimentRead:
+    """Create an experiment (task, target, policy P/H/release, limits, optimiser, budget)."""
+    exp = experiments.create_experiment(session, body, actor=actor)
+    return experiments.read_experiment(session, exp.id)
+
+
+@router.get("")
+def list_experiments(session: ReadSession, _: Reader) -> list[ExperimentRead]:
+    """All experiments, newest first, with trial counts and best objective."""
+    return experiments.list_experiments(session)
+
+
+@router.get("/{experiment_id}")
+def get_experiment(experiment_id: int, session: ReadSession, _: Reader) -> ExperimentRead:
+    """One experiment."""
+    return experiments.read_experiment(session, experiment_id)
+
+
+@router.patch("/{experiment_id}")
+def patch_experiment(
+    experiment_id: int, body: ExperimentPatch, session: WriteSession, actor: Operator
+) -> ExperimentRead:
+    """Change an experiment's status, notes or budget."""
+    return experiments.patch_experiment(session, experiment_id, body, actor=actor)
+
+
+@router.get("/{experiment_id}/trials")
+def list_trials(
+    experiment_id: int,
+    session: ReadSession,
+    _: Reader,
+    status: str | None = Query(None, description="only trials in this status"),
+) -> list[TrialRead]:
+    """An experiment's trials, in index order."""
+    return trials.list_trials(session, experiment_id, status=status)
+
+
+@router.post("/{experiment_id}/suggest", status_code=201)
+def suggest(experiment_id: int, body: SuggestIn, db: DbDep, actor: Operator) -> list[TrialRead]:
+    """Ask the optimiser (rebuilt from the database) for n new trials."""
+    return trials.suggest(db, experiment_id, body.n, actor=actor)
+
+
+@router.post("/{experiment_id}/trials", status_code=201)
+def attach_trial(
+    experiment_id: int, body: AttachIn, session: WriteSession, actor: Operator
+) -> TrialRead:
+    """Add a trial with a θ the operator chose."""
+    return trials.attach(session, experiment_id, body.theta, note=body.note, actor=actor)
+
+
+@router.get("/{experiment_id}/export", response_model=None)
+def export(
+    experiment_id: int,
+    session: ReadSession,
+    _: Reader,
+    format: Literal["csv", "json"] = "json",
+) -> PlainTextResponse | dict:
+    """The experiment's trials (CSV: one row per trial) or everything (JSON)."""
+    if format == "csv":
+        text = data.export_csv(session, experiment_id)
+        return PlainTextResponse(
+            text,
+            media_type="text/csv",
+            headers={
+                "Content-Disposition": f'attachment; filename="experiment_{experiment_id}.csv"'
+            },
+        )
+    return data.export_json(session, experiment_id)
+
+
+@router.post("/{experiment_id}/import", status_code=201)
+def import_observations(
+    experiment_id: int, body: ImportIn, session: WriteSession, actor: Operator
+) -> list[TrialRead]:
+    """Import past observations (θ, objective) as completed trials."""
+    return data.import_observations(session, experiment_id, body, actor=actor)
+
+
+@router.get("/{experiment_id}/model")
+def model(experiment_id: int, session: ReadSession, _: Reader) -> ModelRead:
+    """The GP's lengthscales, the incumbent, and posterior slices through it."""
+    return data.model_insight(session, experiment_id)
+
+
+@router.get("/{experiment_id}/audit")
+def audit(
+    experiment_id: int, session: ReadSession, _: Reader, limit: int = Query(500, ge=1, le=10_000)
+) -> list[AuditRead]:
+    """The experiment's audit log, newest first."""
+    experiments.get_experiment(session, experiment_id)
+    rows = session.scalars(
+        select(AuditLog)
+        .where(AuditLog.experiment_id == experiment_id)
+        .order_by(AuditLog.id.desc())
+        .limit(limit)
+    )
+    return [AuditRead.model_validate(r) for r in rows]
+
+
+@router.get("/{experiment_id}/version")
+def version(experiment_id: int, session: ReadSession, _: Reader) -> VersionRead:
+    """A counter that changes whenever anything in the experiment changes (cheap to poll)."""
+    return VersionRead(
+        experiment_id=experiment_id,
+        version=experiments.experiment_version(session, experiment_id),
+    )
+
+
+@router.get("/{experiment_id}/events")
+async def events(experiment_id: int, request: Request, db: DbDep, _: Reader) -> StreamingResponse:
+    """Server-sent events: ``data: {"version": n}`` each time the experiment changes."""
+
+    def current() -> int:
+        with db.read() as s:
+            return experiments.experiment_version(s, experiment_id)
+
+    first = await run_in_threadpool(current)  # NotFound before the stream starts
+
+    async def stream() -> AsyncIterator[str]:
+        last = first
+        yield f"data: {json.dumps({'version': last})}\n\n"
+        idle = 0.0
+        while not await request.is_disconnected():
+            await asyncio.sleep(0.5)
+            idle += 0.5
+            try:
+                v = await run_in_threadpool(current)
+            except NotFound:
+                return
+            if v != last:
+                last, idle = v, 0.0
+                yield f"data: {json.dumps({'version': v})}\n\n"
+            elif idle >= 15.0:
+                idle = 0.0
+                yield ": keep-alive\n\n"
+
+    return StreamingResponse(stream(), media_type="text/event-stream")

@@ -1,0 +1,107 @@
+"""Trials: read, measure, fail, abandon, resolve, confirm, run, preview, trajectory."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from fastapi import APIRouter, Header
+from fastapi.responses import FileResponse
+
+from app.api.deps import (
+    DbDep,
+    Operator,
+    PreviewsDep,
+    Reader,
+    ReadSession,
+    SettingsDep,
+    WriteSession,
+)
+from app.service import artifacts, measurements, runs, trials
+from app.service.schemas import (
+    ConfirmIn,
+    MeasurementsIn,
+    PreviewJobRead,
+    ReasonIn,
+    ResolveIn,
+    TrialDetail,
+    TrialRead,
+)
+
+router = APIRouter(tags=["trials"])
+
+
+@router.get("/trials/{trial_id}")
+def get_trial(trial_id: int, session: ReadSession, _: Reader) -> TrialDetail:
+    """A trial with its raw measurements and its audit trail."""
+    return trials.read_trial(session, trial_id)
+
+
+@router.post("/trials/{trial_id}/measurements", status_code=201)
+def add_measurements(
+    trial_id: int,
+    body: MeasurementsIn,
+    session: WriteSession,
+    actor: Operator,
+    idempotency_key: str | None = Header(None, alias="Idempotency-Key"),
+) -> TrialDetail:
+    """Record raw repeats (value, unit, note); the objective is their mean ± SEM."""
+    return measurements.add_measurements(
+        session, trial_id, body, idempotency_key=idempotency_key, actor=actor
+    )
+
+
+@router.post("/trials/{trial_id}/fail")
+def fail(trial_id: int, body: ReasonIn, session: WriteSession, actor: Operator) -> TrialRead:
+    """Mark a trial failed, with a reason (aborts it if running)."""
+    return trials.fail(session, trial_id, body.reason, actor=actor)
+
+
+@router.post("/trials/{trial_id}/abandon")
+def abandon(trial_id: int, body: ReasonIn, session: WriteSession, actor: Operator) -> TrialRead:
+    """Abandon a trial: it never runs and is never suggested again."""
+    return trials.abandon(session, trial_id, body.reason, actor=actor)
+
+
+@router.post("/trials/{trial_id}/resolve")
+def resolve(trial_id: int, body: ResolveIn, session: WriteSession, actor: Operator) -> TrialRead:
+    """Decide a needs_review trial: requeue, fail, complete or abandon."""
+    return trials.resolve(session, trial_id, body, actor=actor)
+
+
+@router.post("/trials/{trial_id}/confirm")
+def confirm(trial_id: int, body: ConfirmIn, session: WriteSession, actor: Operator) -> TrialRead:
+    """Confirm a hardware trial's exact schedule (by its hash) so a worker may run it."""
+    return trials.confirm(session, trial_id, body.schedule_hash, actor=actor)
+
+
+@router.post("/trials/{trial_id}/run")
+def run(trial_id: int, db: DbDep, settings: SettingsDep, actor: Operator) -> TrialRead:
+    """Simulate a queued sim trial in the service and record its result."""
+    return runs.run_trial(db, trial_id, actor=actor, artifacts_dir=settings.artifacts_dir)
+
+
+@router.post("/trials/{trial_id}/preview", status_code=202)
+def preview(trial_id: int, db: DbDep, previews: PreviewsDep, _: Operator) -> PreviewJobRead:
+    """Start a sim rollout of exactly this trial's schedule; poll /api/previews/{job_id}."""
+    return previews.submit(db, trial_id)
+
+
+@router.get("/previews/{job_id}")
+def get_preview(job_id: str, previews: PreviewsDep, _: Reader) -> PreviewJobRead:
+    """A preview's status and progress; when done its tip speed, bend-limit hits, trajectory."""
+    return previews.get(job_id)
+
+
+@router.get("/trials/{trial_id}/trajectory", response_model=None)
+def trajectory(
+    trial_id: int,
+    session: ReadSession,
+    settings: SettingsDep,
+    _: Reader,
+    format: Literal["json", "npz"] = "json",
+) -> FileResponse | dict:
+    """The trial's recorded trajectory: arrays as JSON lists, or the .npz file."""
+    path = artifacts.trajectory_path(session, settings.artifacts_dir, trial_id)
+    if format == "npz":
+        return FileResponse(path, media_type="application/octet-stream", filename=path.name)
+    return artifacts.npz_to_json(path)

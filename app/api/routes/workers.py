@@ -1,0 +1,61 @@
+"""Workers: claim trials under a lease, heartbeat, report results."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter
+
+from app.api.deps import SettingsDep, WorkerOrOperator, WriteSession
+from app.service import leases
+from app.service.schemas import ClaimIn, ClaimRead, LeaseRead, ResultIn, ResultRead
+
+router = APIRouter(tags=["workers"])
+
+
+@router.post("/workers/claim")
+def claim(
+    body: ClaimIn, session: WriteSession, settings: SettingsDep, actor: WorkerOrOperator
+) -> list[ClaimRead]:
+    """Claim up to max_trials queued trials of a target, each under a lease."""
+    return leases.claim(
+        session,
+        body,
+        actor=actor,
+        lease_seconds=settings.lease_seconds,
+        max_attempts=settings.max_attempts,
+    )
+
+
+@router.post("/leases/{lease_id}/heartbeat")
+def heartbeat(
+    lease_id: str, session: WriteSession, settings: SettingsDep, actor: WorkerOrOperator
+) -> LeaseRead:
+    """Keep a lease alive for another lease_seconds."""
+    return leases.heartbeat(
+        session,
+        lease_id,
+        actor=actor,
+        lease_seconds=settings.lease_seconds,
+        max_attempts=settings.max_attempts,
+    )
+
+
+@router.post("/trials/{trial_id}/result", response_model=ResultRead)
+def result(
+    trial_id: int,
+    body: ResultIn,
+    session: WriteSession,
+    settings: SettingsDep,
+    actor: WorkerOrOperator,
+) -> dict[str, Any]:
+    """Report what was executed and measured for a leased trial (idempotent per lease)."""
+    return leases.report_result(
+        session,
+        trial_id,
+        body,
+        actor=actor,
+        artifacts_dir=settings.artifacts_dir,
+        max_attempts=settings.max_attempts,
+        max_bytes=settings.max_body_bytes,
+    )

@@ -1,0 +1,54 @@
+"""Server settings: one pydantic-settings ``Settings`` read from ``HANDFUL_*`` environment vars.
+
+Examples: ``HANDFUL_DATA_DIR=/srv/handful``, ``HANDFUL_DATABASE_URL=postgresql+psycopg://...``,
+``HANDFUL_LEASE_SECONDS=30``, ``HANDFUL_PREVIEW__WORKERS=2`` (nested groups use ``__``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import BaseModel, Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class PreviewSettings(BaseModel):
+    """Sim previews of a trial's schedule, run off the request path."""
+
+    workers: int = Field(1, ge=1, le=64, description="threads running preview rollouts")
+    max_jobs: int = Field(64, ge=1, description="finished preview jobs kept in memory")
+
+
+class Settings(BaseSettings):
+    """Everything the server reads from its environment (prefix ``HANDFUL_``)."""
+
+    model_config = SettingsConfigDict(
+        env_prefix="HANDFUL_", env_nested_delimiter="__", extra="ignore"
+    )
+
+    data_dir: Path = Field(Path("data"), description="database (SQLite) and artifacts folder")
+    database_url: str | None = Field(
+        None, description="SQLAlchemy URL; default sqlite:///<data_dir>/handful.db"
+    )
+    host: str = "127.0.0.1"
+    port: int = Field(8000, ge=1, le=65535)
+    viser_port: int = Field(8080, ge=1, le=65535)
+    dashboard_enabled: bool = True
+    public_read: bool = Field(False, description="allow GETs under /api without a token")
+    lease_seconds: float = Field(60.0, gt=0, description="a worker's lease lasts this long")
+    lease_sweep_interval_s: float = Field(5.0, gt=0, description="expired-lease sweep period")
+    max_attempts: int = Field(3, ge=1, description="claims of one sim trial before `failed`")
+    max_body_bytes: int = Field(16 * 1024 * 1024, ge=1024, description="largest request body")
+    preview: PreviewSettings = Field(default_factory=PreviewSettings)
+
+    @property
+    def db_url(self) -> str:
+        """The database URL actually used (embedded SQLite under data_dir by default)."""
+        if self.database_url:
+            return self.database_url
+        return f"sqlite:///{(self.data_dir / 'handful.db').resolve()}"
+
+    @property
+    def artifacts_dir(self) -> Path:
+        """Where trajectories and other trial files live (paths in the DB are relative to it)."""
+        return self.data_dir / "artifacts"

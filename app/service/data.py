@@ -1,0 +1,210 @@
+"""An experiment's data in and out: export (CSV/JSON), import of past observations, and the
+GP's view of it (lengthscales, incumbent, 1-D posterior slices)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from typing import Any
+
+import numpy as np
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from app.db.models import Measurement, Trial
+from app.service import lifecycle as lc
+from app.service.auth import Actor
+from app.service.errors import InvalidInput
+from app.service.experiments import get_experiment, read_experiment, touch
+from app.service.measurements import check_value, store_measurement
+from app.service.schemas import (
+    ImportIn,
+    MeasurementRead,
+    ModelRead,
+    SliceRead,
+    TrialRead,
+)
+from app.service.trials import (
+    _check_can_add,
+    _new_trial,
+    _next_index,
+    list_trials,
+    optimizer_inputs,
+)
+
+
+def export_json(session: Session, experiment_id: int) -> dict[str, Any]:
+    """The experiment, its trials and every raw measurement, as JSON-able dicts."""
+    exp = read_experiment(session, experiment_id)
+    trials = list_trials(session, experiment_id)
+    ms = session.scalars(
+        select(Measurement)
+        .join(Trial, Measurement.trial_id == Trial.id)
+        .where(Trial.experiment_id == experiment_id)
+        .order_by(Measurement.id)
+    )
+    return {
+        "experiment": exp.model_dump(mode="json"),
+        "trials": [t.model_dump(mode="json") for t in trials],
+        "measurements": [MeasurementRead.model_validate(m).model_dump(mode="json") for m in ms],
+    }
+
+
+CSV_FIELDS = (
+    "index",
+    "id",
+    "status",
+    "status_reason",
+    "source",
+    "objective",
+    "objective_sem",
+    "n_measurements",
+    "predicted_mean",
+    "predicted_std",
+    "release_step",
+    "executed_release_step",
+    "created_at",
+    "finished_at",
+)
+
+
+def export_csv(session: Session, experiment_id: int) -> str:
+    """One row per trial: index, status, objective, SEM, θ (planned and executed), times."""
+    exp = get_experiment(session, experiment_id)
+    dim = exp.horizon + int(exp.with_release)
+    trials = list_trials(session, experiment_id)
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(
+        [
+            *CSV_FIELDS,
+            *(f"theta_{i}" for i in range(dim)),
+            *(f"executed_theta_{i}" for i in range(dim)),
+        ]
+    )
+    for t in trials:
+        d = t.model_dump(mode="json")
+        row = ["" if d[f] is None else d[f] for f in CSV_FIELDS]
+        ex = t.executed_theta or [""] * dim
+        w.writerow([*row, *(repr(v) for v in t.theta), *(v if v == "" else repr(v) for v in ex)])
+    return buf.getvalue()
+
+
+def import_observations(
+    session: Session, experiment_id: int, body: ImportIn, *, actor: Actor
+) -> list[TrialRead]:
+    """Add past observations as completed trials (source ``import``), all or nothing."""
+    exp = get_experiment(session, experiment_id)
+    _check_can_add(session, exp, len(body.observations))
+    index = _next_index(session, exp)
+    out = []
+    for i, ob in enumerate(body.observations):
+        unit = ob.unit or exp.objective_unit
+        check_value(ob.objective, unit, exp.objective_unit, what=f"observations[{i}].objective")
+        try:
+            trial = _new_trial(
+                session,
+                exp,
+                ob.theta,
+                source="import",
+                actor=actor,
+                index=index + i,
+                note=ob.note,
+                initial_status=lc.PROPOSED,
+            )
+        except InvalidInput as exc:
+            raise InvalidInput(f"observations[{i}]: {exc}") from None
+        trial.executed_theta = list(trial.theta)
+        trial.executed_pressure_schedule_pa = trial.pressure_schedule_pa
+        trial.executed_release_step = trial.release_step
+        store_measurement(
+            session,
+            trial,
+            [(ob.objective, unit, ob.note or "imported")],
+            actor=actor,
+            source="operator",
+        )
+        if ob.objective_sem is not None:
+            trial.objective_sem = float(ob.objective_sem)
+        lc.transition(session, trial, lc.QUEUED, actor=actor.username, action="trial.import")
+        lc.transition(
+            session,
+            trial,
+            lc.COMPLETED,
+            actor=actor.username,
+            reason="imported observation",
+            action="trial.import",
+        )
+        out.append(trial)
+    touch(exp)
+    session.commit()
+    return [TrialRead.build(t, has_trajectory=False) for t in out]
+
+
+def model_insight(session: Session, experiment_id: int, *, n_points: int = 41) -> ModelRead:
+    """Lengthscales, the incumbent and 1-D posterior slices through it (one per θ dim)."""
+    from app.optim import OptimError
+    from app.service.trials import build_optimizer
+
+    exp = get_experiment(session, experiment_id)
+    inputs = optimizer_inputs(session, exp)
+    obs = inputs.observations
+    base = {"experiment_id": exp.id, "method": exp.method, "n_observations": len(obs)}
+    if not obs:
+        return ModelRead(
+            **base,
+            lengthscales=None,
+            incumbent_theta=None,
+            incumbent_objective=None,
+            incumbent_trial_id=None,
+            slices=[],
+            message="no completed trial with an objective yet",
+        )
+    best = session.scalars(
+        select(Trial)
+        .where(
+            Trial.experiment_id == exp.id,
+            Trial.status == lc.COMPLETED,
+            Trial.objective.is_not(None),
+        )
+        .order_by(Trial.objective.desc(), Trial.index)
+    ).first()
+    assert best is not None
+    inc = list(best.executed_theta if best.executed_theta is not None else best.theta)
+    head = dict(
+        base, incumbent_theta=inc, incumbent_objective=best.objective, incumbent_trial_id=best.id
+    )
+    opt = build_optimizer(inputs)
+    if not hasattr(opt, "predict"):
+        return ModelRead(
+            **head, lengthscales=None, slices=[], message=f"{exp.method} has no surrogate model"
+        )
+    if len(obs) < 2:
+        return ModelRead(
+            **head, lengthscales=None, slices=[], message="the GP needs at least 2 observations"
+        )
+    try:
+        ls = [float(v) for v in opt.lengthscales()]
+        grid = np.linspace(0.0, 1.0, n_points)
+        slices = []
+        for d in range(inputs.dim):
+            pts = np.tile(np.asarray(inc, dtype=np.float64), (n_points, 1))
+            pts[:, d] = grid
+            mean, std = opt.predict(pts)
+            slices.append(
+                SliceRead(
+                    dim=d,
+                    theta=grid.tolist(),
+                    mean=[_finite(v) for v in mean],
+                    std=[_finite(v) for v in std],
+                )
+            )
+    except (OptimError, ValueError, RuntimeError) as exc:
+        return ModelRead(**head, lengthscales=None, slices=[], message=f"model unavailable: {exc}")
+    return ModelRead(**head, lengthscales=ls, slices=slices)
+
+
+def _finite(v: float) -> float:
+    v = float(v)
+    return v if math.isfinite(v) else 0.0

@@ -1,0 +1,233 @@
+"""Experiments: create, read, change; and the policy (θ ↔ schedule, limits) each one implies."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+from app.db.base import utcnow
+from app.db.models import Experiment, Trial
+from app.policy import Policy, PolicyError, PressureLimits
+from app.service.audit import record
+from app.service.auth import Actor
+from app.service.errors import InvalidInput, NotFound
+from app.service.lifecycle import COMPLETED
+from app.service.schemas import ExperimentCreate, ExperimentPatch, ExperimentRead
+
+DEFAULT_UNIT = {"tip_speed": "m/s", "throw": "score", "hammer": "score"}
+
+
+def limits_of(exp: Experiment) -> PressureLimits | None:
+    """The experiment's hardware limits, or None (sim range [0, 275.8 kPa])."""
+    if exp.limits_nominal_pa is None:
+        return None
+    assert exp.limits_max_step_pa is not None and exp.limits_source_pa is not None
+    return PressureLimits(
+        nominal_pa=tuple(exp.limits_nominal_pa),
+        max_step_pa=exp.limits_max_step_pa,
+        source_pa=exp.limits_source_pa,
+    )
+
+
+def policy_of(exp: Experiment) -> Policy:
+    """The Policy that decodes this experiment's θ (with its limits, if any)."""
+    return Policy(
+        levels=exp.levels,
+        horizon=exp.horizon,
+        with_release=exp.with_release,
+        limits=limits_of(exp),
+    )
+
+
+def touch(exp: Experiment) -> None:
+    """Mark the experiment changed (its version is the live pages' change signal)."""
+    exp.version = (exp.version or 0) + 1
+    exp.updated_at = utcnow()
+
+
+def optimizer_kwargs(exp: Experiment) -> dict[str, Any]:
+    """Settings passed to ``app.optim.make_optimizer`` for this experiment."""
+    from app.optim import BO_METHODS, NEEDS_LEVELS
+
+    kwargs: dict[str, Any] = {}
+    if exp.method in BO_METHODS:
+        if exp.acquisition is not None:
+            kwargs["acquisition"] = exp.acquisition
+        if exp.kappa is not None:
+            kwargs["kappa"] = exp.kappa
+        kwargs["n_initial"] = exp.n_initial
+        if exp.method in NEEDS_LEVELS:
+            kwargs.update(levels=exp.levels, horizon=exp.horizon)
+    kwargs.update(exp.optimizer_settings or {})
+    return kwargs
+
+
+def create_experiment(session: Session, spec: ExperimentCreate, *, actor: Actor) -> Experiment:
+    """Validate and store a new experiment (committed)."""
+    from app.optim import METHODS, OptimError, make_optimizer
+
+    with_release = spec.with_release if spec.with_release is not None else spec.task == "throw"
+    if spec.target == "hardware" and spec.limits is None:
+        raise InvalidInput(
+            "a hardware experiment needs limits (nominal_pa, max_step_pa, source_pa)"
+        )
+    limits = None
+    if spec.limits is not None:
+        nominal = spec.limits.nominal_pa
+        if isinstance(nominal, list) and len(nominal) not in (1, 12):
+            raise InvalidInput(f"limits.nominal_pa needs 1 or 12 values, got {len(nominal)}")
+        try:
+            limits = PressureLimits(
+                nominal_pa=tuple(nominal) if isinstance(nominal, list) else nominal,
+                max_step_pa=spec.limits.max_step_pa,
+                source_pa=spec.limits.source_pa,
+            )
+        except (PolicyError, ValueError) as exc:
+            raise InvalidInput(f"limits: {exc}") from None
+    try:
+        policy = Policy(
+            levels=spec.levels, horizon=spec.horizon, with_release=with_release, limits=limits
+        )
+    except PolicyError as exc:
+        raise InvalidInput(str(exc)) from None
+    if spec.method not in METHODS:
+        raise InvalidInput(f"method {spec.method!r} is not one of {', '.join(METHODS)}")
+    exp = Experiment(
+        name=spec.name,
+        task=spec.task,
+        target=spec.target,
+        sim_preset=spec.sim_preset,
+        objective_unit=spec.objective_unit or DEFAULT_UNIT[spec.task],
+        levels=spec.levels,
+        horizon=spec.horizon,
+        with_release=with_release,
+        limits_nominal_pa=list(limits.nominal_pa) if limits else None,
+        limits_max_step_pa=limits.max_step_pa if limits else None,
+        limits_source_pa=limits.source_pa if limits else None,
+        method=spec.method,
+        acquisition=spec.acquisition,
+        kappa=spec.kappa,
+        n_initial=spec.n_initial if spec.n_initial is not None else policy.dim + 1,
+        seed=spec.seed,
+        optimizer_settings=dict(spec.optimizer_settings),
+        budget=spec.budget,
+        status="active",
+        notes=spec.notes,
+        version=1,
+        created_by=actor.username,
+    )
+    try:  # refuse settings the optimiser would refuse later, now, with its message
+        make_optimizer(exp.method, policy.dim, seed=exp.seed, **optimizer_kwargs(exp))
+    except (OptimError, ValueError, TypeError) as exc:
+        raise InvalidInput(f"optimizer settings: {exc}") from None
+    _check_preset(spec.sim_preset)
+    session.add(exp)
+    session.flush()
+    record(
+        session,
+        actor=actor.username,
+        action="experiment.create",
+        entity="experiment",
+        entity_id=exp.id,
+        experiment_id=exp.id,
+        after="active",
+        detail={"name": exp.name, "task": exp.task, "target": exp.target},
+    )
+    session.commit()
+    return exp
+
+
+def _check_preset(preset: str) -> None:
+    try:
+        from app.sim import PRESETS
+    except ImportError:  # the simulator package is optional for a pure-hardware server
+        return
+    if preset not in PRESETS:
+        raise InvalidInput(f"sim_preset {preset!r} is not one of {', '.join(PRESETS)}")
+
+
+def get_experiment(session: Session, experiment_id: int, *, for_update: bool = False) -> Experiment:
+    """The experiment or NotFound."""
+    exp = session.get(Experiment, experiment_id)
+    if exp is None:
+        raise NotFound(f"experiment {experiment_id} not found")
+    return exp
+
+
+def _stats(session: Session, ids: list[int]) -> tuple[dict[int, dict[str, int]], dict[int, Any]]:
+    counts: dict[int, dict[str, int]] = {i: {} for i in ids}
+    if not ids:
+        return counts, {}
+    rows = session.execute(
+        select(Trial.experiment_id, Trial.status, func.count())
+        .where(Trial.experiment_id.in_(ids))
+        .group_by(Trial.experiment_id, Trial.status)
+    ).all()
+    for eid, status, n in rows:
+        counts[eid][status] = n
+    best: dict[int, tuple[int, float]] = {}
+    rows2 = session.execute(
+        select(Trial.experiment_id, Trial.id, Trial.objective)
+        .where(
+            Trial.experiment_id.in_(ids),
+            Trial.status == COMPLETED,
+            Trial.objective.is_not(None),
+        )
+        .order_by(Trial.experiment_id, Trial.objective.desc(), Trial.index)
+    ).all()
+    for eid, tid, obj in rows2:
+        if eid not in best:
+            best[eid] = (tid, obj)
+    return counts, best
+
+
+def read_experiment(session: Session, experiment_id: int) -> ExperimentRead:
+    """One experiment with counts and best objective."""
+    exp = get_experiment(session, experiment_id)
+    counts, best = _stats(session, [exp.id])
+    return ExperimentRead.build(exp, status_counts=counts[exp.id], best=best.get(exp.id))
+
+
+def list_experiments(session: Session) -> list[ExperimentRead]:
+    """All experiments, newest first."""
+    exps = list(session.scalars(select(Experiment).order_by(Experiment.id.desc())))
+    counts, best = _stats(session, [e.id for e in exps])
+    return [ExperimentRead.build(e, status_counts=counts[e.id], best=best.get(e.id)) for e in exps]
+
+
+def patch_experiment(
+    session: Session, experiment_id: int, patch: ExperimentPatch, *, actor: Actor
+) -> ExperimentRead:
+    """Change status / notes / budget (committed, audited)."""
+    exp = get_experiment(session, experiment_id)
+    changes = patch.model_dump(exclude_unset=True)
+    for field, value in changes.items():
+        if field in ("status", "notes") and value is None:
+            raise InvalidInput(f"{field} cannot be null")
+        before = getattr(exp, field)
+        if before == value:
+            continue
+        setattr(exp, field, value)
+        record(
+            session,
+            actor=actor.username,
+            action=f"experiment.{field}",
+            entity="experiment",
+            entity_id=exp.id,
+            experiment_id=exp.id,
+            before=None if before is None else str(before)[:2000],
+            after=None if value is None else str(value)[:2000],
+        )
+    touch(exp)
+    session.commit()
+    return read_experiment(session, exp.id)
+
+
+def experiment_version(session: Session, experiment_id: int) -> int:
+    """The experiment's change counter."""
+    v = session.scalar(select(Experiment.version).where(Experiment.id == experiment_id))
+    if v is None:
+        raise NotFound(f"experiment {experiment_id} not found")
+    return int(v)

@@ -1,0 +1,370 @@
+"""Workers' leases: claim (atomic, behind the safety gate), heartbeat, result, expiry sweep.
+
+A hardware trial is claimable only when confirmed, when its current schedule still hashes to
+the confirmed hash, and when that schedule passes the experiment's limits again. A sim trial
+whose lease expires is requeued up to ``max_attempts`` claims, then failed; a hardware trial
+whose lease expires goes to needs_review and is never rerun on its own.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import uuid
+from datetime import datetime, timedelta
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from app.db.base import utcnow
+from app.db.models import Experiment, Lease, Trial
+from app.policy import N_CHAMBERS, Policy, PolicyError, schedule_hash
+from app.service import lifecycle as lc
+from app.service.artifacts import decode_npz_b64, store_trajectory
+from app.service.audit import record
+from app.service.auth import OPERATOR, Actor
+from app.service.errors import (
+    DuplicateRequest,
+    Forbidden,
+    InvalidInput,
+    LeaseLost,
+    NotFound,
+    SafetyViolation,
+)
+from app.service.experiments import policy_of, touch
+from app.service.measurements import check_value, store_measurement
+from app.service.schemas import ClaimIn, ClaimRead, ExperimentRead, LeaseRead, ResultIn, TrialRead
+from app.service.trials import check_schedule_safe
+
+SYSTEM_ACTOR = "system"
+
+
+def theta_from_schedule(
+    policy: Policy, pressure_schedule_pa: Any, release_step: int | None
+) -> np.ndarray:
+    """θ (D,) of an executed schedule (H, 12) Pa: exact when on the policy's level grid,
+    else each pair snapped to its nearest level (what the GP is fitted on)."""
+    sched = np.asarray(pressure_schedule_pa, dtype=np.float64)
+    if sched.shape != (policy.horizon, N_CHAMBERS) or not np.all(np.isfinite(sched)):
+        raise InvalidInput(
+            f"executed_pressure_schedule_pa must be {policy.horizon}×{N_CHAMBERS} finite "
+            f"numbers (Pa), got shape {sched.shape}"
+        )
+    table = policy.level_pressures_pa()  # (12, P)
+    levels = np.empty((policy.horizon, 6), dtype=np.int64)
+    for u in range(6):
+        pair = sched[:, 2 * u : 2 * u + 2]  # (H, 2)
+        err = np.abs(table[None, 2 * u : 2 * u + 2, :] - pair[:, :, None]).mean(axis=1)  # (H, P)
+        levels[:, u] = np.argmin(err, axis=1)
+    actions = np.ravel_multi_index(tuple(levels.T), (policy.levels,) * 6)
+    if policy.with_release:
+        if release_step is None or not 1 <= int(release_step) <= policy.horizon:
+            raise InvalidInput(f"executed_release_step must be in 1..{policy.horizon}")
+    else:
+        release_step = None
+    try:
+        return policy.theta_from_actions(np.asarray(actions), release_step)
+    except PolicyError as exc:
+        raise InvalidInput(str(exc)) from None
+
+
+# --- expiry ----------------------------------------------------------------------------------
+def sweep_expired(session: Session, *, max_attempts: int, now: datetime | None = None) -> int:
+    """Expire every active lease past its time; requeue/fail/needs_review its trial. Flushes."""
+    now = now or utcnow()
+    leases = list(
+        session.scalars(select(Lease).where(Lease.status == "active", Lease.expires_at < now))
+    )
+    for lease in leases:
+        lease.status = "expired"
+        lease.ended_at = now
+        trial = session.get(Trial, lease.trial_id)
+        assert trial is not None
+        exp = trial.experiment
+        record(
+            session,
+            actor=SYSTEM_ACTOR,
+            action="lease.expired",
+            entity="lease",
+            entity_id=lease.id,
+            experiment_id=trial.experiment_id,
+            trial_id=trial.id,
+            before="active",
+            after="expired",
+            detail={"worker_id": lease.worker_id, "expired_at": lease.expires_at.isoformat()},
+            now=now,
+        )
+        if trial.status != lc.RUNNING:
+            continue
+        why = f"worker {lease.worker_id} stopped heartbeating (lease {lease.id} expired)"
+        if exp.target == "hardware":
+            new, reason = lc.NEEDS_REVIEW, f"{why}; a hardware trial is never rerun on its own"
+        elif trial.attempts < max_attempts:
+            new, reason = lc.QUEUED, f"{why}; requeued (attempt {trial.attempts}/{max_attempts})"
+        else:
+            new, reason = lc.FAILED, f"{why}; {trial.attempts} attempts, giving up"
+        lc.transition(
+            session,
+            trial,
+            new,
+            actor=SYSTEM_ACTOR,
+            reason=reason,
+            action="trial.lease_expired",
+            now=now,
+        )
+        touch(exp)
+    session.flush()
+    return len(leases)
+
+
+# --- claim -----------------------------------------------------------------------------------
+def _gate(session: Session, exp: Experiment, trial: Trial, now: datetime) -> str | None:
+    """Why this queued trial may not be handed to a worker (None: it may)."""
+    try:
+        check_schedule_safe(exp, trial.pressure_schedule_pa, trial.release_step)
+    except SafetyViolation as exc:
+        return str(exc)
+    if exp.target == "hardware":
+        if trial.confirmed_hash is None:
+            return "hardware trial has no confirmation on record"
+        current = schedule_hash(trial.pressure_schedule_pa, trial.release_step)
+        if current != trial.confirmed_hash:
+            return (
+                f"schedule changed after confirmation (hash {current[:12]}… ≠ confirmed "
+                f"{trial.confirmed_hash[:12]}…)"
+            )
+    return None
+
+
+def claim(
+    session: Session,
+    body: ClaimIn,
+    *,
+    actor: Actor,
+    lease_seconds: float,
+    max_attempts: int,
+) -> list[ClaimRead]:
+    """Hand up to ``max_trials`` queued trials of ``target`` to a worker, each under a lease.
+
+    Atomic: the caller's write session holds the write lock (SQLite) or row locks (SKIP
+    LOCKED, PostgreSQL) from the first read, so no trial is handed out twice.
+    """
+    now = utcnow()
+    sweep_expired(session, max_attempts=max_attempts, now=now)
+    q = (
+        select(Trial)
+        .join(Experiment, Trial.experiment_id == Experiment.id)
+        .where(
+            Trial.status == lc.QUEUED,
+            Experiment.target == body.target,
+            Experiment.status == "active",
+        )
+        .order_by(Trial.updated_at, Trial.id)
+        .limit(body.max_trials * 4 + 8)
+        .with_for_update(skip_locked=True, of=Trial)
+    )
+    out: list[ClaimRead] = []
+    for trial in session.scalars(q):
+        if len(out) >= body.max_trials:
+            break
+        exp = trial.experiment
+        refusal = _gate(session, exp, trial, now)
+        if refusal is not None:
+            lc.transition(
+                session,
+                trial,
+                lc.NEEDS_REVIEW,
+                actor=SYSTEM_ACTOR,
+                reason=f"refused by the safety gate: {refusal}",
+                action="trial.gate_refused",
+                now=now,
+            )
+            touch(exp)
+            continue
+        trial.attempts += 1
+        lc.transition(
+            session,
+            trial,
+            lc.RUNNING,
+            actor=actor.username,
+            action="trial.claim",
+            detail={"worker_id": body.worker_id, "attempt": trial.attempts},
+            now=now,
+        )
+        lease = Lease(
+            id=str(uuid.uuid4()),
+            trial_id=trial.id,
+            worker_id=body.worker_id,
+            claimed_by=actor.username,
+            status="active",
+            attempt=trial.attempts,
+            created_at=now,
+            heartbeat_at=now,
+            expires_at=now + timedelta(seconds=lease_seconds),
+        )
+        session.add(lease)
+        touch(exp)
+        session.flush()
+        out.append(
+            ClaimRead(
+                lease_id=lease.id,
+                trial=TrialRead.build(trial, has_trajectory=False),
+                experiment=ExperimentRead.build(exp),
+                lease_expires_at=lease.expires_at,
+            )
+        )
+    session.commit()
+    return out
+
+
+def _get_lease(session: Session, lease_id: str, actor: Actor) -> Lease:
+    lease = session.get(Lease, lease_id)
+    if lease is None:
+        raise NotFound(f"lease {lease_id} not found")
+    if actor.role != OPERATOR and lease.claimed_by != actor.username:
+        raise Forbidden(f"lease {lease_id} belongs to {lease.claimed_by}, not {actor.username}")
+    return lease
+
+
+def _lost(lease: Lease, trial: Trial | None) -> LeaseLost:
+    state = f"; trial {lease.trial_id} is now {trial.status}" if trial is not None else ""
+    when = lease.ended_at.isoformat() if lease.ended_at else "?"
+    return LeaseLost(
+        f"lease {lease.id} was {lease.status} at {when}{state}; a late result or heartbeat "
+        "for a lost lease is refused"
+    )
+
+
+def heartbeat(
+    session: Session, lease_id: str, *, actor: Actor, lease_seconds: float, max_attempts: int
+) -> LeaseRead:
+    """Extend an active lease by ``lease_seconds`` (committed). LeaseLost if it expired."""
+    now = utcnow()
+    sweep_expired(session, max_attempts=max_attempts, now=now)
+    lease = _get_lease(session, lease_id, actor)
+    if lease.status != "active":
+        session.commit()  # keep what the sweep did
+        raise _lost(lease, session.get(Trial, lease.trial_id))
+    lease.heartbeat_at = now
+    lease.expires_at = now + timedelta(seconds=lease_seconds)
+    session.commit()
+    return LeaseRead(
+        lease_id=lease.id,
+        trial_id=lease.trial_id,
+        worker_id=lease.worker_id,
+        status=lease.status,
+        attempt=lease.attempt,
+        lease_expires_at=lease.expires_at,
+    )
+
+
+def _result_sha256(trial_id: int, body: ResultIn) -> str:
+    blob = json.dumps({"trial_id": trial_id, **body.model_dump()}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def report_result(
+    session: Session,
+    trial_id: int,
+    body: ResultIn,
+    *,
+    actor: Actor,
+    artifacts_dir: Path,
+    max_attempts: int,
+    max_bytes: int,
+) -> dict[str, Any]:
+    """Record what a worker executed and measured under its lease (idempotent per lease).
+
+    The executed schedule gives the executed θ the GP is fitted on. A fault sends a sim
+    trial to failed and a hardware trial to needs_review; an executed schedule beyond the
+    limits sends it to needs_review; otherwise an objective completes the trial.
+    """
+    now = utcnow()
+    sweep_expired(session, max_attempts=max_attempts, now=now)
+    lease = _get_lease(session, body.lease_id, actor)
+    if lease.trial_id != trial_id:
+        raise InvalidInput(f"lease {lease.id} is for trial {lease.trial_id}, not {trial_id}")
+    digest = _result_sha256(trial_id, body)
+    if lease.status == "completed":
+        if lease.result_sha256 == digest and lease.result_response is not None:
+            session.commit()
+            return dict(lease.result_response)
+        raise DuplicateRequest(
+            f"lease {lease.id} already has a different result recorded; nothing stored again"
+        )
+    trial = session.get(Trial, trial_id)
+    if lease.status != "active" or trial is None:
+        session.commit()
+        raise _lost(lease, trial)
+    exp = trial.experiment
+    policy = policy_of(exp)
+    # --- validate everything before storing anything
+    exec_sched = body.executed_pressure_schedule_pa
+    exec_release = body.executed_release_step
+    if exec_sched is None:
+        exec_sched, exec_release = trial.pressure_schedule_pa, trial.release_step
+    exec_theta = theta_from_schedule(policy, exec_sched, exec_release)
+    if not policy.with_release:
+        exec_release = None
+    if body.objective is not None:
+        check_value(body.objective, exp.objective_unit, exp.objective_unit, what="objective")
+    raw = None
+    if body.trajectory_npz_b64 is not None:
+        raw = decode_npz_b64(body.trajectory_npz_b64, max_bytes=max_bytes)
+    beyond = None
+    try:
+        check_schedule_safe(exp, exec_sched, exec_release)
+    except SafetyViolation as exc:
+        beyond = str(exc)
+    # --- store
+    trial.executed_pressure_schedule_pa = np.asarray(exec_sched, dtype=np.float64).tolist()
+    trial.executed_release_step = exec_release
+    trial.executed_theta = [float(v) for v in exec_theta]
+    if raw is not None:
+        store_trajectory(session, artifacts_dir, trial, raw, actor=actor, tag=lease.id[:8])
+    if body.objective is not None:
+        note = f"worker {lease.worker_id}, lease {lease.id}"
+        store_measurement(
+            session,
+            trial,
+            [(body.objective, exp.objective_unit, note)],
+            actor=actor,
+            source="worker",
+        )
+    detail: dict[str, Any] = {"lease_id": lease.id, "worker_id": lease.worker_id}
+    if body.summary:
+        detail["summary"] = body.summary
+    if body.fault:
+        if exp.target == "hardware":
+            new, reason = lc.NEEDS_REVIEW, f"fault reported by the worker: {body.fault}"
+        else:
+            new, reason = lc.FAILED, f"fault reported by the worker: {body.fault}"
+    elif beyond is not None:
+        new, reason = lc.NEEDS_REVIEW, f"executed schedule beyond the limits: {beyond}"
+    elif trial.objective is None:
+        new, reason = lc.NEEDS_REVIEW, "the worker reported no objective and no fault"
+    else:
+        new, reason = lc.COMPLETED, ""
+    lc.transition(
+        session,
+        trial,
+        new,
+        actor=actor.username,
+        reason=reason,
+        action="trial.result",
+        detail=detail,
+        now=now,
+    )
+    lease.status = "completed"
+    lease.ended_at = now
+    session.flush()
+    session.refresh(trial, attribute_names=["artifacts"])
+    response = {"lease_id": lease.id, "trial": TrialRead.build(trial).model_dump(mode="json")}
+    lease.result_sha256 = digest
+    lease.result_response = response
+    touch(exp)
+    session.commit()
+    return response

@@ -1,0 +1,429 @@
+"""Pydantic v2 schemas of what goes in and out of the service (the API's bodies and replies).
+
+``*Create`` / ``*In`` validate input (finite numbers only, unknown fields refused);
+``*Read`` are built from ORM rows.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from app.db.models import AuditLog, Experiment, Trial
+from app.policy import schedule_hash
+
+TaskName = Literal["throw", "hammer", "tip_speed"]
+Target = Literal["sim", "hardware"]
+ExperimentStatus = Literal["active", "paused", "completed", "archived"]
+Acquisition = Literal["logei", "ucb", "qlognei"]
+Unit = Literal["m", "m/s", "N", "score"]
+
+
+class _In(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+# --- experiments -----------------------------------------------------------------------------
+class LimitsIn(_In):
+    """Hardware pressure limits: nominal ± max step, within [0, source], Pa."""
+
+    nominal_pa: float | list[float] = Field(
+        100_000.0, description="12 nominal chamber pressures (or one for all), Pa"
+    )
+    max_step_pa: float = Field(30_000.0, gt=0, description="largest offset from nominal, Pa")
+    source_pa: float = Field(205_000.0, gt=0, description="supply pressure, Pa")
+
+
+class ExperimentCreate(_In):
+    """A new experiment. ``levels`` is P, ``horizon`` is H; ``with_release`` defaults to throw."""
+
+    name: str = Field(min_length=1, max_length=200)
+    task: TaskName
+    target: Target = "sim"
+    levels: int = Field(ge=2, le=1000, description="P, pressure levels per paired command")
+    horizon: int = Field(10, ge=1, le=100, description="H, control steps over 5 s")
+    with_release: bool | None = Field(None, description="release-step parameter (throw)")
+    limits: LimitsIn | None = Field(None, description="required for hardware")
+    method: str = Field("bo-lei", description="one of app.optim.METHODS")
+    acquisition: Acquisition | None = Field(None, description="None: the method's default")
+    kappa: float | None = Field(None, ge=0, le=1000, description="UCB κ (μ + √κ σ)")
+    n_initial: int | None = Field(None, ge=2, le=10_000, description="random trials; D + 1")
+    seed: int = Field(0, ge=0, le=2**31 - 1)
+    optimizer_settings: dict[str, Any] = Field(default_factory=dict)
+    budget: int | None = Field(None, ge=1, le=1_000_000, description="max trials")
+    notes: str = Field("", max_length=20_000)
+    sim_preset: str = Field("reference", max_length=32)
+    objective_unit: Unit | None = Field(
+        None, description="unit of measurements; default m/s for tip_speed, else score"
+    )
+
+
+class ExperimentPatch(_In):
+    """Fields an operator may change after creation."""
+
+    status: ExperimentStatus | None = None
+    notes: str | None = Field(None, max_length=20_000)
+    budget: int | None = Field(None, ge=1, le=1_000_000)
+
+
+class LimitsRead(BaseModel):
+    nominal_pa: list[float]
+    max_step_pa: float
+    source_pa: float
+
+
+class ExperimentRead(BaseModel):
+    """An experiment with its trial counts and best objective so far."""
+
+    id: int
+    name: str
+    task: str
+    target: str
+    sim_preset: str
+    objective_unit: str
+    levels: int
+    horizon: int
+    with_release: bool
+    dim: int
+    limits: LimitsRead | None
+    method: str
+    acquisition: str | None
+    kappa: float | None
+    n_initial: int
+    seed: int
+    optimizer_settings: dict[str, Any]
+    budget: int | None
+    status: str
+    notes: str
+    version: int
+    created_by: str
+    created_at: datetime
+    updated_at: datetime
+    n_trials: int = 0
+    status_counts: dict[str, int] = Field(default_factory=dict)
+    best_objective: float | None = None
+    best_trial_id: int | None = None
+
+    @classmethod
+    def build(
+        cls,
+        exp: Experiment,
+        *,
+        status_counts: dict[str, int] | None = None,
+        best: tuple[int, float] | None = None,
+    ) -> ExperimentRead:
+        counts = status_counts or {}
+        limits = None
+        if exp.limits_nominal_pa is not None:
+            assert exp.limits_max_step_pa is not None and exp.limits_source_pa is not None
+            limits = LimitsRead(
+                nominal_pa=list(exp.limits_nominal_pa),
+                max_step_pa=exp.limits_max_step_pa,
+                source_pa=exp.limits_source_pa,
+            )
+        return cls(
+            id=exp.id,
+            name=exp.name,
+            task=exp.task,
+            target=exp.target,
+            sim_preset=exp.sim_preset,
+            objective_unit=exp.objective_unit,
+            levels=exp.levels,
+            horizon=exp.horizon,
+            with_release=exp.with_release,
+            dim=exp.horizon + int(exp.with_release),
+            limits=limits,
+            method=exp.method,
+            acquisition=exp.acquisition,
+            kappa=exp.kappa,
+            n_initial=exp.n_initial,
+            seed=exp.seed,
+            optimizer_settings=dict(exp.optimizer_settings or {}),
+            budget=exp.budget,
+            status=exp.status,
+            notes=exp.notes,
+            version=exp.version,
+            created_by=exp.created_by,
+            created_at=exp.created_at,
+            updated_at=exp.updated_at,
+            n_trials=sum(counts.values()),
+            status_counts=counts,
+            best_objective=best[1] if best else None,
+            best_trial_id=best[0] if best else None,
+        )
+
+
+class VersionRead(BaseModel):
+    """A number that changes whenever anything in the experiment changes."""
+
+    experiment_id: int
+    version: int
+
+
+# --- trials ----------------------------------------------------------------------------------
+class SuggestIn(_In):
+    n: int = Field(1, ge=1, le=100, description="how many trials to propose")
+
+
+class AttachIn(_In):
+    """A θ the operator chose (like Ax's attach_trial)."""
+
+    theta: list[float] = Field(min_length=1, max_length=1001)
+    note: str = Field("", max_length=2000)
+
+
+class ReasonIn(_In):
+    reason: str = Field(min_length=1, max_length=2000)
+
+
+class ResolveIn(_In):
+    """What a person decided for a trial in needs_review."""
+
+    decision: Literal["requeue", "fail", "complete", "abandon"]
+    reason: str = Field(min_length=1, max_length=2000)
+
+
+class ConfirmIn(_In):
+    schedule_hash: str = Field(min_length=64, max_length=64, pattern="^[0-9a-f]{64}$")
+
+
+class RepeatIn(_In):
+    """One raw repeat of a measurement."""
+
+    value: float
+    unit: Unit
+    note: str = Field("", max_length=2000)
+
+
+class MeasurementsIn(_In):
+    repeats: list[RepeatIn] = Field(min_length=1, max_length=100)
+
+
+class ObservationIn(_In):
+    """A past observation to import (e.g. from simulation)."""
+
+    theta: list[float] = Field(min_length=1, max_length=1001)
+    objective: float
+    objective_sem: float | None = Field(None, ge=0)
+    unit: Unit | None = None
+    note: str = Field("", max_length=2000)
+
+
+class ImportIn(_In):
+    observations: list[ObservationIn] = Field(min_length=1, max_length=10_000)
+
+
+class MeasurementRead(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+    id: int
+    trial_id: int
+    value: float
+    unit: str
+    note: str
+    source: str
+    created_by: str
+    created_at: datetime
+
+
+class AuditRead(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+    id: int
+    at: datetime
+    actor: str
+    action: str
+    entity: str
+    entity_id: str
+    experiment_id: int | None
+    trial_id: int | None
+    before: str | None
+    after: str | None
+    detail: dict[str, Any] | None
+
+
+class TrialRead(BaseModel):
+    """A trial as the API shows it (see docs/ARCHITECTURE.md, "Trial JSON")."""
+
+    id: int
+    experiment_id: int
+    index: int
+    status: str
+    status_reason: str
+    source: str
+    note: str
+    theta: list[float]
+    pressure_schedule_pa: list[list[float]]
+    release_step: int | None
+    executed_theta: list[float] | None
+    executed_pressure_schedule_pa: list[list[float]] | None
+    executed_release_step: int | None
+    objective: float | None
+    objective_sem: float | None
+    n_measurements: int
+    predicted_mean: float | None
+    predicted_std: float | None
+    schedule_hash: str
+    confirmed_hash: str | None
+    confirmed_by: str | None
+    confirmed_at: datetime | None
+    attempts: int
+    created_by: str
+    created_at: datetime
+    updated_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None
+    duration_s: float | None
+    has_trajectory: bool
+
+    @classmethod
+    def build(cls, t: Trial, *, has_trajectory: bool | None = None) -> TrialRead:
+        duration = None
+        if t.started_at is not None and t.finished_at is not None:
+            duration = (t.finished_at - t.started_at).total_seconds()
+        if has_trajectory is None:
+            has_trajectory = any(a.kind == "trajectory" for a in t.artifacts)
+        return cls(
+            id=t.id,
+            experiment_id=t.experiment_id,
+            index=t.index,
+            status=t.status,
+            status_reason=t.status_reason,
+            source=t.source,
+            note=t.note,
+            theta=list(t.theta),
+            pressure_schedule_pa=[list(r) for r in t.pressure_schedule_pa],
+            release_step=t.release_step,
+            executed_theta=None if t.executed_theta is None else list(t.executed_theta),
+            executed_pressure_schedule_pa=None
+            if t.executed_pressure_schedule_pa is None
+            else [list(r) for r in t.executed_pressure_schedule_pa],
+            executed_release_step=t.executed_release_step,
+            objective=t.objective,
+            objective_sem=t.objective_sem,
+            n_measurements=t.n_measurements,
+            predicted_mean=t.predicted_mean,
+            predicted_std=t.predicted_std,
+            schedule_hash=schedule_hash(t.pressure_schedule_pa, t.release_step),
+            confirmed_hash=t.confirmed_hash,
+            confirmed_by=t.confirmed_by,
+            confirmed_at=t.confirmed_at,
+            attempts=t.attempts,
+            created_by=t.created_by,
+            created_at=t.created_at,
+            updated_at=t.updated_at,
+            started_at=t.started_at,
+            finished_at=t.finished_at,
+            duration_s=duration,
+            has_trajectory=has_trajectory,
+        )
+
+
+class TrialDetail(TrialRead):
+    """A trial with its raw measurements and its audit trail."""
+
+    measurements: list[MeasurementRead]
+    audit: list[AuditRead]
+
+    @classmethod
+    def build_detail(cls, t: Trial, audit: list[AuditLog]) -> TrialDetail:
+        base = TrialRead.build(t).model_dump()
+        return cls(
+            **base,
+            measurements=[MeasurementRead.model_validate(m) for m in t.measurements],
+            audit=[AuditRead.model_validate(a) for a in audit],
+        )
+
+
+# --- model insight ---------------------------------------------------------------------------
+class SliceRead(BaseModel):
+    """The GP posterior along θ[dim] through the incumbent (others held fixed)."""
+
+    dim: int
+    theta: list[float]
+    mean: list[float]
+    std: list[float]
+
+
+class ModelRead(BaseModel):
+    experiment_id: int
+    method: str
+    n_observations: int
+    lengthscales: list[float] | None
+    incumbent_theta: list[float] | None
+    incumbent_objective: float | None
+    incumbent_trial_id: int | None
+    slices: list[SliceRead]
+    message: str = ""
+
+
+# --- workers, leases, results ----------------------------------------------------------------
+class ClaimIn(_In):
+    worker_id: str = Field(min_length=1, max_length=128)
+    target: Target
+    max_trials: int = Field(1, ge=1, le=64)
+
+
+class ClaimRead(BaseModel):
+    lease_id: str
+    trial: TrialRead
+    experiment: ExperimentRead
+    lease_expires_at: datetime
+
+
+class LeaseRead(BaseModel):
+    lease_id: str
+    trial_id: int
+    worker_id: str
+    status: str
+    attempt: int
+    lease_expires_at: datetime
+
+
+class ResultIn(_In):
+    """What a worker ran and measured for a leased trial."""
+
+    lease_id: str = Field(min_length=1, max_length=36)
+    executed_pressure_schedule_pa: list[list[float]] | None = None
+    executed_release_step: int | None = Field(None, ge=1, le=1000)
+    objective: float | None = None
+    trajectory_npz_b64: str | None = Field(None, description="np.savez bytes, base64")
+    fault: str | None = Field(None, max_length=2000)
+    summary: dict[str, Any] | None = Field(None, description="e.g. RolloutResult.to_summary()")
+
+
+class ResultRead(BaseModel):
+    lease_id: str
+    trial: TrialRead
+
+
+# --- previews --------------------------------------------------------------------------------
+class PreviewJobRead(BaseModel):
+    job_id: str
+    trial_id: int
+    status: Literal["queued", "running", "done", "error"]
+    progress: float
+    error: str | None = None
+    predicted_tip_speed: float | None = None
+    predicted_objective: float | None = None
+    bend_limit_hits: list[int] | None = None
+    schedule_hash: str
+    trajectory: dict[str, Any] | None = None
+
+
+# --- users -----------------------------------------------------------------------------------
+class LoginIn(_In):
+    username: str = Field(min_length=1, max_length=64)
+    password: str = Field(min_length=1, max_length=1024)
+
+
+class UserRead(BaseModel):
+    username: str
+    role: str
+
+
+class LoginRead(BaseModel):
+    token: str
+    user: UserRead

@@ -1,0 +1,460 @@
+"""Trials: suggest (ask the optimiser, rebuilt from the database), attach, read, fail, abandon,
+resolve, confirm (hardware gate) and run in the service (sim, the pre-worker path)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+from app.db.base import utcnow
+from app.db.models import AuditLog, Confirmation, Experiment, Lease, Trial
+from app.db.session import Database
+from app.policy import Policy, PolicyError, PressureLimitError, schedule_hash
+from app.service import lifecycle as lc
+from app.service.audit import record
+from app.service.auth import Actor
+from app.service.errors import (
+    ConfirmationMismatch,
+    Conflict,
+    InvalidInput,
+    NotFound,
+    SafetyViolation,
+)
+from app.service.experiments import get_experiment, optimizer_kwargs, policy_of, touch
+from app.service.schemas import ResolveIn, TrialDetail, TrialRead
+
+
+# --- reading ---------------------------------------------------------------------------------
+def get_trial(session: Session, trial_id: int) -> Trial:
+    """The trial or NotFound."""
+    trial = session.get(Trial, trial_id)
+    if trial is None:
+        raise NotFound(f"trial {trial_id} not found")
+    return trial
+
+
+def read_trial(session: Session, trial_id: int) -> TrialDetail:
+    """A trial with its measurements and audit trail."""
+    trial = get_trial(session, trial_id)
+    audit = list(
+        session.scalars(select(AuditLog).where(AuditLog.trial_id == trial.id).order_by(AuditLog.id))
+    )
+    return TrialDetail.build_detail(trial, audit)
+
+
+def list_trials(
+    session: Session, experiment_id: int, *, status: str | None = None
+) -> list[TrialRead]:
+    """An experiment's trials in index order (optionally one status)."""
+    get_experiment(session, experiment_id)
+    if status is not None and status not in lc.STATUSES:
+        raise InvalidInput(f"status {status!r} is not one of {', '.join(lc.STATUSES)}")
+    q = select(Trial).where(Trial.experiment_id == experiment_id).order_by(Trial.index)
+    if status is not None:
+        q = q.where(Trial.status == status)
+    trials = list(session.scalars(q))
+    with_traj = _trials_with_trajectory(session, [t.id for t in trials])
+    return [TrialRead.build(t, has_trajectory=t.id in with_traj) for t in trials]
+
+
+def _trials_with_trajectory(session: Session, ids: list[int]) -> set[int]:
+    from app.db.models import Artifact
+
+    if not ids:
+        return set()
+    return set(
+        session.scalars(
+            select(Artifact.trial_id).where(
+                Artifact.trial_id.in_(ids), Artifact.kind == "trajectory"
+            )
+        )
+    )
+
+
+# --- creating --------------------------------------------------------------------------------
+def decode_checked(policy: Policy, theta: Any) -> tuple[np.ndarray, np.ndarray, int | None]:
+    """θ → (θ (D,), schedule (H,12) Pa, release_step), checked against the policy's limits."""
+    try:
+        decoded = policy.decode(np.asarray(theta, dtype=np.float64))
+    except PressureLimitError as exc:
+        raise SafetyViolation(f"schedule beyond the pressure limits: {exc}") from None
+    except (PolicyError, ValueError, TypeError) as exc:
+        raise InvalidInput(str(exc)) from None
+    return np.asarray(theta, dtype=np.float64), decoded.pressure_schedule_pa, decoded.release_step
+
+
+def check_schedule_safe(exp: Experiment, schedule: Any, release_step: int | None) -> np.ndarray:
+    """Re-check a stored/forged schedule against the experiment's limits (SafetyViolation)."""
+    policy = policy_of(exp)
+    try:
+        sched = policy.check(np.asarray(schedule, dtype=np.float64))
+    except PressureLimitError as exc:
+        raise SafetyViolation(f"schedule beyond the pressure limits: {exc}") from None
+    except (PolicyError, ValueError, TypeError) as exc:
+        raise SafetyViolation(f"schedule refused: {exc}") from None
+    if exp.with_release:
+        if release_step is None or not 1 <= int(release_step) <= exp.horizon:
+            raise SafetyViolation(f"release_step must be in 1..{exp.horizon}, got {release_step}")
+    elif release_step is not None:
+        raise SafetyViolation("this experiment has no release step")
+    return sched
+
+
+def _check_can_add(session: Session, exp: Experiment, n: int) -> None:
+    if exp.status != "active":
+        raise Conflict(f"experiment {exp.id} is {exp.status}; set it active to add trials")
+    if exp.budget is not None:
+        used = session.scalar(
+            select(func.count())
+            .select_from(Trial)
+            .where(Trial.experiment_id == exp.id, Trial.status != lc.ABANDONED)
+        )
+        if (used or 0) + n > exp.budget:
+            raise Conflict(
+                f"budget of {exp.budget} trials reached ({used} used, {n} more asked); "
+                "raise it with PATCH /api/experiments/{id}"
+            )
+
+
+def _next_index(session: Session, exp: Experiment) -> int:
+    last = session.scalar(select(func.max(Trial.index)).where(Trial.experiment_id == exp.id))
+    return (last or 0) + 1
+
+
+def _new_trial(
+    session: Session,
+    exp: Experiment,
+    theta: Any,
+    *,
+    source: str,
+    actor: Actor,
+    index: int,
+    note: str = "",
+    predicted: tuple[float, float] | None = None,
+    initial_status: str | None = None,
+) -> Trial:
+    """Create a trial (proposed), then move it on: sim → queued, hardware → awaiting."""
+    th, schedule, release = decode_checked(policy_of(exp), theta)
+    now = utcnow()
+    trial = Trial(
+        experiment_id=exp.id,
+        index=index,
+        status=lc.PROPOSED,
+        status_reason="",
+        source=source,
+        note=note,
+        theta=[float(v) for v in th],
+        pressure_schedule_pa=np.asarray(schedule, dtype=np.float64).tolist(),
+        release_step=release,
+        predicted_mean=None if predicted is None else float(predicted[0]),
+        predicted_std=None if predicted is None else float(predicted[1]),
+        n_measurements=0,
+        attempts=0,
+        created_by=actor.username,
+        created_at=now,
+        updated_at=now,
+    )
+    session.add(trial)
+    session.flush()
+    record(
+        session,
+        actor=actor.username,
+        action="trial.create",
+        entity="trial",
+        entity_id=trial.id,
+        experiment_id=exp.id,
+        trial_id=trial.id,
+        after=lc.PROPOSED,
+        detail={"source": source, "index": index},
+        now=now,
+    )
+    nxt = initial_status or (lc.AWAITING_CONFIRMATION if exp.target == "hardware" else lc.QUEUED)
+    if nxt != lc.PROPOSED:
+        lc.transition(session, trial, nxt, actor=actor.username, now=now)
+    return trial
+
+
+@dataclass(frozen=True)
+class OptimizerInputs:
+    """What the optimiser is rebuilt from: a snapshot of the experiment's trials."""
+
+    method: str
+    dim: int
+    seed: int
+    kwargs: dict[str, Any]
+    observations: list[Any]  # app.optim.Observation, in trial index order
+    pending: np.ndarray | None  # (k, dim)
+    version: int
+
+
+def optimizer_inputs(session: Session, exp: Experiment) -> OptimizerInputs:
+    """Completed trials with an objective (executed θ when reported) and pending θ."""
+    from app.optim import Observation
+
+    trials = list(
+        session.scalars(select(Trial).where(Trial.experiment_id == exp.id).order_by(Trial.index))
+    )
+    obs = []
+    pending = []
+    for t in trials:
+        if t.status == lc.COMPLETED and t.objective is not None:
+            theta = t.executed_theta if t.executed_theta is not None else t.theta
+            obs.append(
+                Observation(
+                    tuple(float(v) for v in theta),
+                    float(t.objective),
+                    None if t.objective_sem is None else float(t.objective_sem),
+                )
+            )
+        elif t.status in lc.PENDING:
+            pending.append(t.theta)
+    dim = exp.horizon + int(exp.with_release)
+    return OptimizerInputs(
+        method=exp.method,
+        dim=dim,
+        seed=exp.seed,
+        kwargs=optimizer_kwargs(exp),
+        observations=obs,
+        pending=np.asarray(pending, dtype=np.float64).reshape(-1, dim) if pending else None,
+        version=exp.version,
+    )
+
+
+def build_optimizer(inputs: OptimizerInputs) -> Any:
+    """make_optimizer + observe_many: the optimiser exactly as the database describes it."""
+    from app.optim import make_optimizer
+
+    opt = make_optimizer(inputs.method, inputs.dim, seed=inputs.seed, **inputs.kwargs)
+    if inputs.observations:
+        opt.observe_many(inputs.observations)
+    return opt
+
+
+def ask(inputs: OptimizerInputs, n: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """(n, D) suggested θ, and the model's predicted mean/std there (None before a GP)."""
+    from app.optim import OptimError
+
+    opt = build_optimizer(inputs)
+    thetas = np.asarray(opt.suggest(n, pending=inputs.pending), dtype=np.float64).reshape(n, -1)
+    mean = std = None
+    if hasattr(opt, "predict") and len(inputs.observations) >= 2:
+        try:
+            mean, std = opt.predict(thetas)
+        except (OptimError, ValueError, RuntimeError):
+            mean = std = None
+    return thetas, mean, std
+
+
+def suggest(db: Database, experiment_id: int, n: int, *, actor: Actor) -> list[TrialRead]:
+    """Ask the optimiser for ``n`` trials given the completed and pending ones; store them.
+
+    The optimiser runs outside the write lock; if the experiment changed meanwhile the
+    suggestion is recomputed, so the stored trials always follow from the stored data.
+    """
+    for _ in range(5):
+        with db.read() as s:
+            exp = get_experiment(s, experiment_id)
+            _check_can_add(s, exp, n)
+            inputs = optimizer_inputs(s, exp)
+        thetas, mean, std = ask(inputs, n)
+        with db.write() as s:
+            exp = get_experiment(s, experiment_id)
+            if exp.version != inputs.version:
+                continue
+            _check_can_add(s, exp, n)
+            index = _next_index(s, exp)
+            trials = []
+            for i in range(n):
+                predicted = None if mean is None or std is None else (mean[i], std[i])
+                trials.append(
+                    _new_trial(
+                        s,
+                        exp,
+                        thetas[i],
+                        source="optimizer",
+                        actor=actor,
+                        index=index + i,
+                        predicted=predicted,
+                    )
+                )
+            touch(exp)
+            s.flush()
+            return [TrialRead.build(t, has_trajectory=False) for t in trials]
+    raise Conflict("the experiment kept changing while the optimiser ran; try again")
+
+
+def attach(
+    session: Session, experiment_id: int, theta: list[float], *, note: str, actor: Actor
+) -> TrialRead:
+    """Add a trial with an operator-chosen θ (checked like any other), committed."""
+    exp = get_experiment(session, experiment_id)
+    _check_can_add(session, exp, 1)
+    predicted = None
+    trial = _new_trial(
+        session,
+        exp,
+        theta,
+        source="operator",
+        actor=actor,
+        index=_next_index(session, exp),
+        note=note,
+        predicted=predicted,
+    )
+    touch(exp)
+    session.commit()
+    return TrialRead.build(trial, has_trajectory=False)
+
+
+# --- status changes --------------------------------------------------------------------------
+def active_lease(session: Session, trial_id: int) -> Lease | None:
+    """The trial's active lease, if a worker holds one."""
+    return session.scalar(select(Lease).where(Lease.trial_id == trial_id, Lease.status == "active"))
+
+
+def _end_lease(session: Session, trial: Trial, status: str, *, actor: Actor, why: str) -> None:
+    lease = active_lease(session, trial.id)
+    if lease is None:
+        return
+    lease.status = status
+    lease.ended_at = utcnow()
+    record(
+        session,
+        actor=actor.username,
+        action=f"lease.{status}",
+        entity="lease",
+        entity_id=lease.id,
+        experiment_id=trial.experiment_id,
+        trial_id=trial.id,
+        before="active",
+        after=status,
+        detail={"why": why, "worker_id": lease.worker_id},
+    )
+
+
+def fail(session: Session, trial_id: int, reason: str, *, actor: Actor) -> TrialRead:
+    """Mark a trial failed (an abort when it is running: its lease is revoked)."""
+    trial = get_trial(session, trial_id)
+    was = trial.status
+    lc.transition(
+        session,
+        trial,
+        lc.FAILED,
+        actor=actor.username,
+        reason=reason,
+        action="trial.abort" if was == lc.RUNNING else "trial.fail",
+    )
+    if was == lc.RUNNING:
+        _end_lease(session, trial, "revoked", actor=actor, why=f"trial failed: {reason}")
+    touch(trial.experiment)
+    session.commit()
+    return TrialRead.build(trial)
+
+
+def abandon(session: Session, trial_id: int, reason: str, *, actor: Actor) -> TrialRead:
+    """Abandon a trial: never run, never suggested again (its lease, if any, is revoked)."""
+    trial = get_trial(session, trial_id)
+    was = trial.status
+    lc.transition(
+        session,
+        trial,
+        lc.ABANDONED,
+        actor=actor.username,
+        reason=reason,
+        action="trial.abort" if was == lc.RUNNING else "trial.abandon",
+    )
+    if was == lc.RUNNING:
+        _end_lease(session, trial, "revoked", actor=actor, why=f"trial abandoned: {reason}")
+    touch(trial.experiment)
+    session.commit()
+    return TrialRead.build(trial)
+
+
+def resolve(session: Session, trial_id: int, body: ResolveIn, *, actor: Actor) -> TrialRead:
+    """A person's decision on a trial in needs_review (an override, audited).
+
+    requeue: a sim trial goes back to queued; a hardware trial goes back to
+    awaiting_confirmation and needs a fresh confirmation. complete: needs measurements.
+    """
+    trial = get_trial(session, trial_id)
+    if trial.status != lc.NEEDS_REVIEW:
+        raise lc.IllegalTransition(
+            f"cannot resolve: trial {trial.id} is {trial.status}, not needs_review",
+            current=trial.status,
+        )
+    exp = trial.experiment
+    detail = {"decision": body.decision}
+    if body.decision == "requeue":
+        if exp.target == "hardware":
+            trial.confirmed_hash = trial.confirmed_by = None
+            trial.confirmed_at = None
+            new = lc.AWAITING_CONFIRMATION
+        else:
+            new = lc.QUEUED
+    elif body.decision == "complete":
+        if trial.objective is None:
+            raise Conflict(
+                f"cannot complete trial {trial.id}: it has no measurement; post one first"
+            )
+        new = lc.COMPLETED
+    elif body.decision == "fail":
+        new = lc.FAILED
+    else:
+        new = lc.ABANDONED
+    lc.transition(
+        session,
+        trial,
+        new,
+        actor=actor.username,
+        reason=body.reason,
+        action="trial.resolve",
+        detail=detail,
+    )
+    touch(exp)
+    session.commit()
+    return TrialRead.build(trial)
+
+
+def confirm(session: Session, trial_id: int, given_hash: str, *, actor: Actor) -> TrialRead:
+    """An operator's go-ahead for exactly this schedule (hash), re-checked against the limits."""
+    trial = get_trial(session, trial_id)
+    exp = trial.experiment
+    if exp.target != "hardware":
+        raise Conflict(f"trial {trial.id} is a sim trial; only hardware trials are confirmed")
+    lc.check_transition(trial, lc.QUEUED, action="confirm")
+    if trial.status != lc.AWAITING_CONFIRMATION:
+        raise lc.IllegalTransition(
+            f"cannot confirm: trial {trial.id} is {trial.status}, not awaiting_confirmation",
+            current=trial.status,
+        )
+    current = schedule_hash(trial.pressure_schedule_pa, trial.release_step)
+    if given_hash != current:
+        raise ConfirmationMismatch(
+            f"schedule_hash {given_hash[:12]}… is not trial {trial.id}'s current schedule "
+            f"({current[:12]}…); reload the trial and confirm what it will run"
+        )
+    check_schedule_safe(exp, trial.pressure_schedule_pa, trial.release_step)
+    now = utcnow()
+    session.add(
+        Confirmation(
+            trial_id=trial.id, schedule_hash=current, confirmed_by=actor.username, confirmed_at=now
+        )
+    )
+    trial.confirmed_hash = current
+    trial.confirmed_by = actor.username
+    trial.confirmed_at = now
+    lc.transition(
+        session,
+        trial,
+        lc.QUEUED,
+        actor=actor.username,
+        action="trial.confirm",
+        detail={"schedule_hash": current},
+        now=now,
+    )
+    touch(exp)
+    session.commit()
+    return TrialRead.build(trial)

@@ -1,0 +1,254 @@
+"""Shared fixtures: a migrated SQLite file, users with tokens, and a real uvicorn server.
+
+Everything is real: the database is built by running the Alembic migrations, the server is a
+uvicorn subprocess on a free 127.0.0.1 port, and tests talk to it through ``app.client``.
+
+Fixtures (reuse them; they are documented for the workers and dashboard tests):
+
+- ``migrated_db(tmp_path) -> str``: SQLAlchemy URL of a fresh, migrated SQLite file.
+- ``server_factory(**options) -> ServerHandle``: start a server over a fresh data folder
+  (users ``operator``/``viewer``/``worker`` with tokens in ``handle.tokens``); options:
+  ``env={"HANDFUL_LEASE_SECONDS": "2", ...}``, ``dashboard=False``, ``use_cli=False``
+  (``True`` starts it with ``handful serve``, migrations included). The handle can
+  ``kill9()``, ``stop()``, ``start()`` (same data folder and port) and make clients.
+  All servers are killed at the end of the test.
+- ``live_server``: one server shared by the whole session (dashboard off, 60 s leases).
+  Tests sharing it must create their own experiments and never assume global counts.
+- ``api`` / ``viewer_api`` / ``worker_api`` / ``anon_api``: ``HandfulClient`` on
+  ``live_server`` with the operator / viewer / worker token / no token.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import httpx
+import pytest
+
+from app.client import HandfulClient
+from app.db.migrate import upgrade
+from app.db.session import Database
+from app.service.auth import add_user, create_token
+
+REPO = Path(__file__).resolve().parents[1]
+ROLES = ("operator", "viewer", "worker")
+PASSWORD = "correct horse battery"  # every fixture user's password
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that was free a moment ago."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def sqlite_url(path: Path) -> str:
+    return f"sqlite:///{path.resolve()}"
+
+
+def make_migrated_db(data_dir: Path) -> str:
+    """Run the migrations on ``data_dir/handful.db``; return its URL."""
+    data_dir.mkdir(parents=True, exist_ok=True)
+    url = sqlite_url(data_dir / "handful.db")
+    upgrade(url)
+    return url
+
+
+def seed_users(url: str) -> dict[str, str]:
+    """Users named after their role (password ``PASSWORD``), one token each: role → token."""
+    db = Database(url)
+    tokens = {}
+    try:
+        with db.write() as s:
+            for role in ROLES:
+                add_user(s, role, role, password=PASSWORD)
+                tokens[role] = create_token(s, role, label="tests")
+    finally:
+        db.dispose()
+    return tokens
+
+
+@dataclass
+class ServerHandle:
+    """A uvicorn subprocess serving handful over ``data_dir`` on 127.0.0.1:``port``."""
+
+    data_dir: Path
+    port: int
+    tokens: dict[str, str]
+    env: dict[str, str]
+    use_cli: bool = False
+    proc: subprocess.Popen[bytes] | None = None
+    log_path: Path = field(init=False)
+    _clients: list[HandfulClient] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.log_path = self.data_dir / "server.log"
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.port}"
+
+    @property
+    def db_url(self) -> str:
+        return sqlite_url(self.data_dir / "handful.db")
+
+    def client(self, role: str | None = "operator", **kwargs: object) -> HandfulClient:
+        """A client with ``role``'s token (None: no token). Closed at teardown."""
+        c = HandfulClient(self.url, self.tokens[role] if role else None, **kwargs)  # type: ignore[arg-type]
+        self._clients.append(c)
+        return c
+
+    def start(self, timeout_s: float = 90.0) -> None:
+        """Start (or restart) the server and wait until /health answers."""
+        assert self.proc is None or self.proc.poll() is not None, "already running"
+        env = {**os.environ, **self.env, "HANDFUL_DATA_DIR": str(self.data_dir)}
+        if self.use_cli:
+            cmd = [
+                sys.executable,
+                "-m",
+                "app.cli",
+                "serve",
+                "--host",
+                "127.0.0.1",
+                "--port",
+                str(self.port),
+                "--log-level",
+                "warning",
+            ]
+        else:
+            cmd = [
+                sys.executable,
+                "-m",
+                "uvicorn",
+                "--factory",
+                "app.api.main:create_app",
+                "--host",
+                "127.0.0.1",
+                "--port",
+                str(self.port),
+                "--log-level",
+                "warning",
+            ]
+        log = open(self.log_path, "ab")  # noqa: SIM115 (the child owns it)
+        self.proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=log, stderr=subprocess.STDOUT)
+        log.close()
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"server exited with {self.proc.returncode}:\n{self.log_tail()}")
+            with contextlib.suppress(httpx.HTTPError):
+                if httpx.get(self.url + "/health", timeout=2.0).status_code == 200:
+                    return
+            time.sleep(0.1)
+        self.stop(kill=True)
+        raise RuntimeError(f"server not healthy after {timeout_s} s:\n{self.log_tail()}")
+
+    def kill9(self) -> None:
+        """SIGKILL the server (no shutdown hooks, no flushing) and reap it."""
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGKILL)
+            self.proc.wait(timeout=30)
+
+    def stop(self, kill: bool = False) -> None:
+        """Stop the server (SIGTERM, then SIGKILL after 15 s)."""
+        if self.proc is None or self.proc.poll() is not None:
+            return
+        if kill:
+            self.kill9()
+            return
+        self.proc.terminate()
+        try:
+            self.proc.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            self.kill9()
+
+    def log_tail(self, n: int = 4000) -> str:
+        try:
+            return self.log_path.read_text(errors="replace")[-n:]
+        except OSError:
+            return ""
+
+    def close(self) -> None:
+        for c in self._clients:
+            c.close()
+        self.stop(kill=False)
+
+
+def _new_server(
+    root: Path, *, env: dict[str, str] | None, dashboard: bool, use_cli: bool
+) -> ServerHandle:
+    data_dir = root / "data"
+    url = make_migrated_db(data_dir)
+    tokens = seed_users(url)
+    full_env = {
+        "HANDFUL_DASHBOARD_ENABLED": "1" if dashboard else "0",
+        "HANDFUL_LEASE_SWEEP_INTERVAL_S": "0.5",
+        **(env or {}),
+    }
+    handle = ServerHandle(
+        data_dir=data_dir, port=free_port(), tokens=tokens, env=full_env, use_cli=use_cli
+    )
+    handle.start()
+    return handle
+
+
+@pytest.fixture
+def migrated_db(tmp_path: Path) -> str:
+    """URL of a fresh SQLite file built by running the migrations."""
+    return make_migrated_db(tmp_path / "data")
+
+
+@pytest.fixture
+def server_factory(tmp_path: Path) -> Iterator[Callable[..., ServerHandle]]:
+    """Start servers on demand (each over its own data folder); all stopped at teardown."""
+    handles: list[ServerHandle] = []
+
+    def factory(
+        *, env: dict[str, str] | None = None, dashboard: bool = False, use_cli: bool = False
+    ) -> ServerHandle:
+        root = tmp_path / f"server{len(handles)}"
+        handle = _new_server(root, env=env, dashboard=dashboard, use_cli=use_cli)
+        handles.append(handle)
+        return handle
+
+    yield factory
+    for h in handles:
+        h.close()
+
+
+@pytest.fixture(scope="session")
+def live_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerHandle]:
+    """One server for the session (dashboard off)."""
+    handle = _new_server(tmp_path_factory.mktemp("live"), env=None, dashboard=False, use_cli=False)
+    yield handle
+    handle.close()
+
+
+@pytest.fixture
+def api(live_server: ServerHandle) -> HandfulClient:
+    """Operator client on the shared server."""
+    return live_server.client("operator")
+
+
+@pytest.fixture
+def viewer_api(live_server: ServerHandle) -> HandfulClient:
+    return live_server.client("viewer")
+
+
+@pytest.fixture
+def worker_api(live_server: ServerHandle) -> HandfulClient:
+    return live_server.client("worker")
+
+
+@pytest.fixture
+def anon_api(live_server: ServerHandle) -> HandfulClient:
+    return live_server.client(None)
