@@ -1,0 +1,263 @@
+"""The operator's dashboard: HTML pages, their static JS/CSS, plotly.js, and the viser 3D server.
+
+Pages are plain HTML (``web/templates``) whose small ES modules (``web/static/js``) call the
+JSON API under ``/api`` with the token kept in the browser; nothing here reads the database.
+The one JSON route of its own, ``POST /viz/views``, turns a trial or a preview job into a 3D
+replay on the viser server; it fetches what it draws through the same API (in process, with
+the caller's token), so it sees exactly what the caller may see.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+from fastapi import APIRouter, FastAPI, HTTPException, Request
+from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, RedirectResponse
+from fastapi.staticfiles import StaticFiles
+from fastapi.templating import Jinja2Templates
+from pydantic import BaseModel, Field
+
+from app.viz import Replay, VizServer
+
+log = logging.getLogger(__name__)
+
+WEB_DIR = Path(__file__).resolve().parents[1] / "web"
+
+
+def plotly_js_path() -> Path:
+    """plotly.min.js as shipped inside the installed ``plotly`` Python package."""
+    import plotly
+
+    path = Path(plotly.__file__).resolve().parent / "package_data" / "plotly.min.js"
+    if not path.is_file():
+        raise FileNotFoundError(f"plotly.min.js not found at {path}; reinstall plotly")
+    return path
+
+
+class ViewRequest(BaseModel):
+    """What a tab wants to see in 3D: a trial's replay or a preview job's rollout."""
+
+    trial_id: int | None = Field(None, ge=1, description="replay this trial")
+    preview_job_id: str | None = Field(
+        None, max_length=200, description="replay this preview job's rollout (of trial_id)"
+    )
+    overlay_trial_id: int | None = Field(None, ge=1, description="overlay this trial, see-through")
+
+
+class ApiRefused(Exception):
+    """The API answered a fetch made on the caller's behalf with an error."""
+
+    def __init__(self, status_code: int, detail: Any) -> None:
+        super().__init__(str(detail))
+        self.status_code = status_code
+        self.detail = detail
+
+
+async def _get_json(client: httpx.AsyncClient, path: str, auth: str | None) -> Any:
+    headers = {"Authorization": auth} if auth else {}
+    response = await client.get(path, headers=headers)
+    if response.status_code >= 400:
+        try:
+            detail = response.json().get("detail", response.text)
+        except ValueError:
+            detail = response.text
+        raise ApiRefused(response.status_code, detail)
+    return response.json()
+
+
+def _trajectory_qpos(trajectory: Any) -> tuple[np.ndarray, np.ndarray] | None:
+    """(time_s (T,), qpos (T, nq)) from a trajectory JSON, or None when it has no qpos."""
+    if not isinstance(trajectory, dict):
+        return None
+    qpos, time_s = trajectory.get("qpos"), trajectory.get("time_s")
+    if qpos is None or time_s is None:
+        return None
+    q = np.asarray(qpos, dtype=np.float64)
+    t = np.asarray(time_s, dtype=np.float64)
+    if q.ndim != 2 or t.ndim != 1 or q.shape[0] != t.shape[0] or q.shape[0] == 0:
+        return None
+    return t, q
+
+
+def _simulate_qpos(
+    task: str, preset: str, schedule: Any, release_step: int | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """A sim rollout of the schedule with qpos recorded: (time_s (T,), qpos (T, nq))."""
+    from app.sim import rollout
+
+    result = rollout(
+        task,
+        np.asarray(schedule, dtype=np.float64),
+        release_step=release_step,
+        preset=preset,
+        record_qpos=True,
+    )
+    return np.asarray(result.trajectory.time_s), np.asarray(result.trajectory.qpos)
+
+
+async def _trial_replay(
+    client: httpx.AsyncClient, auth: str | None, trial_id: int, role: str
+) -> tuple[Replay, dict[str, Any]]:
+    """A trial's recorded qpos if it has some, else a sim rollout of what it ran (or plans)."""
+    trial = await _get_json(client, f"/api/trials/{trial_id}", auth)
+    experiment = await _get_json(client, f"/api/experiments/{trial['experiment_id']}", auth)
+    task, preset = experiment["task"], experiment.get("sim_preset") or "reference"
+    recorded = None
+    if trial.get("has_trajectory"):
+        try:
+            recorded = _trajectory_qpos(
+                await _get_json(client, f"/api/trials/{trial_id}/trajectory?format=json", auth)
+            )
+        except ApiRefused as exc:
+            log.info("trial %s: no trajectory for 3D (%s)", trial_id, exc)
+    if recorded is not None:
+        time_s, qpos = recorded
+        how = "recorded"
+    else:
+        executed = trial.get("executed_pressure_schedule_pa")
+        schedule = executed if executed is not None else trial["pressure_schedule_pa"]
+        release = trial.get("executed_release_step") if executed is not None else None
+        release = release if release is not None else trial.get("release_step")
+        time_s, qpos = await asyncio.to_thread(_simulate_qpos, task, preset, schedule, release)
+        how = "simulated from its executed schedule" if executed else "simulated from its plan"
+    label = f"trial {trial.get('index', trial_id)} ({role}, {how})"
+    return Replay(task, time_s, qpos, label, preset), trial
+
+
+def _view_error(exc: Exception) -> JSONResponse:
+    if isinstance(exc, ApiRefused):
+        return JSONResponse({"detail": exc.detail}, status_code=exc.status_code)
+    return JSONResponse({"detail": f"could not build the 3D view: {exc}"}, status_code=422)
+
+
+def mount_dashboard(app: FastAPI, settings: Any) -> None:
+    """Add the dashboard pages, static assets and the viser 3D server to ``app``.
+
+    The viser server is started and stopped by the callables appended to
+    ``app.state.startup_hooks`` / ``app.state.shutdown_hooks`` (run by the app's lifespan).
+    """
+    templates = Jinja2Templates(directory=str(WEB_DIR / "templates"))
+    viz = VizServer(host=getattr(settings, "host", "127.0.0.1"), port=settings.viser_port)
+    app.state.viz = viz
+    for name, hook in (("startup_hooks", viz.start), ("shutdown_hooks", viz.stop)):
+        hooks = getattr(app.state, name, None)
+        if hooks is None:
+            hooks = []
+            setattr(app.state, name, hooks)
+        hooks.append(hook)
+
+    app.mount("/static", StaticFiles(directory=str(WEB_DIR / "static")), name="static")
+    router = APIRouter(include_in_schema=False)
+    plotly_path = plotly_js_path()
+
+    @router.get("/vendor/plotly.min.js")
+    def plotly_js() -> FileResponse:
+        """plotly.js from the installed package (no CDN)."""
+        return FileResponse(
+            plotly_path,
+            media_type="text/javascript",
+            headers={"Cache-Control": "public, max-age=86400"},
+        )
+
+    def page(request: Request, template: str, **context: Any) -> HTMLResponse:
+        return templates.TemplateResponse(
+            request, template, {"viser_port": viz_port(), "page": template, **context}
+        )
+
+    def viz_port() -> int:
+        return viz.port if viz.running else int(settings.viser_port)
+
+    @router.get("/", response_class=HTMLResponse)
+    def home() -> RedirectResponse:
+        return RedirectResponse("/experiments", status_code=307)
+
+    @router.get("/login", response_class=HTMLResponse)
+    def login_page(request: Request) -> HTMLResponse:
+        return page(request, "login.html")
+
+    @router.get("/experiments", response_class=HTMLResponse)
+    def experiments_page(request: Request) -> HTMLResponse:
+        return page(request, "experiments.html")
+
+    @router.get("/experiments/new", response_class=HTMLResponse)
+    def new_experiment_page(request: Request) -> HTMLResponse:
+        return page(request, "new_experiment.html")
+
+    @router.get("/experiments/{experiment_id}", response_class=HTMLResponse)
+    def experiment_page(request: Request, experiment_id: int) -> HTMLResponse:
+        return page(request, "experiment.html", experiment_id=experiment_id)
+
+    @router.get("/trials/{trial_id}", response_class=HTMLResponse)
+    def trial_page(request: Request, trial_id: int) -> HTMLResponse:
+        return page(request, "trial.html", trial_id=trial_id)
+
+    @router.get("/viz/status")
+    def viz_status() -> dict[str, Any]:
+        """Whether the viser server runs, and on which port."""
+        return {"running": viz.running, "port": viz_port()}
+
+    @router.post("/viz/views")
+    async def create_view(body: ViewRequest, request: Request) -> Any:
+        """Register a 3D replay for one tab; returns its key and the viser port."""
+        if body.trial_id is None:
+            raise HTTPException(422, "trial_id is required (the trial to replay or preview)")
+        if not viz.running:
+            raise HTTPException(503, "the 3D viewer (viser) is not running on this server")
+        auth = request.headers.get("Authorization")
+        transport = httpx.ASGITransport(app=request.app)
+        try:
+            async with httpx.AsyncClient(transport=transport, base_url="http://dashboard") as c:
+                if body.preview_job_id is not None:
+                    primary, trial = await _preview_replay(c, auth, body)
+                else:
+                    primary, trial = await _trial_replay(c, auth, body.trial_id, "this trial")
+                overlay = None
+                if body.overlay_trial_id is not None:
+                    overlay, _ = await _trial_replay(c, auth, body.overlay_trial_id, "best so far")
+            key = await asyncio.to_thread(viz.add_view, primary, overlay)
+        except (ApiRefused, ValueError, KeyError) as exc:
+            return _view_error(exc)
+        return {
+            "key": key,
+            "port": viz.port,
+            "websocket_path": viz.websocket_path(key),
+            "label": primary.label,
+            "overlay_label": overlay.label if overlay else None,
+            "trial_id": trial.get("id", body.trial_id),
+        }
+
+    async def _preview_replay(
+        c: httpx.AsyncClient, auth: str | None, body: ViewRequest
+    ) -> tuple[Replay, dict[str, Any]]:
+        """The preview job's rollout (exactly the trial's current schedule)."""
+        job = await _get_json(c, f"/api/previews/{body.preview_job_id}", auth)
+        if job.get("status") not in ("done", "completed", "succeeded", "finished"):
+            raise ValueError(f"preview {body.preview_job_id} is {job.get('status')}, not done")
+        trial = await _get_json(c, f"/api/trials/{body.trial_id}", auth)
+        result = job.get("result") or job
+        job_trial = result.get("trial_id", job.get("trial_id"))
+        if job_trial is not None and int(job_trial) != int(body.trial_id):
+            raise ValueError(f"preview {body.preview_job_id} is of trial {job_trial}")
+        job_hash = result.get("schedule_hash", job.get("schedule_hash"))
+        if job_hash is not None and job_hash != trial.get("schedule_hash"):
+            raise ValueError("the trial's schedule changed since this preview; preview again")
+        experiment = await _get_json(c, f"/api/experiments/{trial['experiment_id']}", auth)
+        task, preset = experiment["task"], experiment.get("sim_preset") or "reference"
+        recorded = _trajectory_qpos(result.get("trajectory"))
+        if recorded is None:
+            recorded = await asyncio.to_thread(
+                _simulate_qpos,
+                task,
+                preset,
+                trial["pressure_schedule_pa"],
+                trial.get("release_step"),
+            )
+        label = f"trial {trial.get('index', body.trial_id)} (candidate, sim preview)"
+        return Replay(task, recorded[0], recorded[1], label, preset), trial
+
+    app.include_router(router)

@@ -1,0 +1,237 @@
+import { api } from "./api.js";
+import { renderTrialActions } from "./actions.js";
+import { bestSoFar, relevance, scheduleHeatmap, slices } from "./plots.js";
+import { $, applyRole, badge, canWrite, download, el, fmt, fmtDuration, fmtPm, fmtTime, requireLogin, showError } from "./ui.js";
+
+const experimentId = window.HANDFUL.experimentId;
+const ACTIVE_ORDER = ["needs_review", "running", "queued", "awaiting_confirmation", "proposed"];
+let experiment = null;
+let trials = [];
+let version = null;
+let nextKey = null;
+
+function listOf(answer) {
+  return Array.isArray(answer) ? answer : (answer && (answer.items || answer.trials)) || [];
+}
+
+function say(message) {
+  $("#exp-ok").textContent = message || "";
+  if (message) setTimeout(() => { if ($("#exp-ok").textContent === message) $("#exp-ok").textContent = ""; }, 8000);
+}
+
+function limitsText(e) {
+  const nominal = e.limits_nominal_pa ?? e.nominal_pa ?? e.limits?.nominal_pa;
+  const step = e.limits_max_step_pa ?? e.max_step_pa ?? e.limits?.max_step_pa;
+  const source = e.limits_source_pa ?? e.source_pa ?? e.limits?.source_pa;
+  if (nominal === null || nominal === undefined) return "sim range 0–275.8 kPa";
+  const nom = Array.isArray(nominal) ? (new Set(nominal).size === 1 ? `${fmt(nominal[0] / 1000, 1)}` : nominal.map((v) => fmt(v / 1000, 0)).join("/")) : fmt(nominal / 1000, 1);
+  return `nominal ${nom} kPa ± ${fmt(step / 1000, 1)} kPa, source ${fmt(source / 1000, 1)} kPa`;
+}
+
+function boundsPa(e) {
+  const nominal = e.limits_nominal_pa ?? e.nominal_pa ?? e.limits?.nominal_pa;
+  const step = e.limits_max_step_pa ?? e.max_step_pa ?? e.limits?.max_step_pa;
+  if (nominal === null || nominal === undefined) return { lowerPa: 0, upperPa: 275790 };
+  const arr = Array.isArray(nominal) ? nominal : [nominal];
+  return { lowerPa: Math.min(...arr) - step, upperPa: Math.max(...arr) + step };
+}
+
+function incumbent() {
+  const done = trials.filter((t) => t.status === "completed" && t.objective !== null);
+  return done.length ? done.reduce((a, b) => (b.objective > a.objective ? b : a)) : null;
+}
+
+function pickNext() {
+  for (const status of ACTIVE_ORDER) {
+    const t = trials.find((x) => x.status === status);
+    if (t) return t;
+  }
+  const sorted = trials.slice().sort((a, b) => b.index - a.index);
+  return sorted[0] || null;
+}
+
+function renderHeader() {
+  const e = experiment;
+  $("#exp-title").textContent = `${e.name || "Experiment"} (#${e.id})`;
+  document.title = `${e.name || "Experiment"} · handful`;
+  $("#exp-status").replaceChildren(badge(e.status));
+  $("#exp-status").className = `badge ${e.status}`;
+  const done = trials.filter((t) => t.status === "completed").length;
+  const best = incumbent();
+  $("#exp-summary").textContent = [
+    `${e.task} on ${e.target}`,
+    `P = ${e.levels}, H = ${e.horizon}${e.with_release ? " + release step" : ""}`,
+    `${e.method}${e.acquisition ? ` (${e.acquisition}${e.kappa !== null && e.kappa !== undefined ? `, κ = ${e.kappa}` : ""})` : ""}, ${e.n_initial} initial, seed ${e.seed}`,
+    `objective in ${e.objective_unit}`,
+    limitsText(e),
+    `${done} / ${e.budget ?? "∞"} trials done`,
+    `best so far ${best ? fmtPm(best.objective, best.objective_sem) : "—"}`,
+    `by ${e.created_by || "?"}, ${fmtTime(e.created_at)}`,
+  ].join(" · ");
+  if (document.activeElement !== $("#exp-status-select")) $("#exp-status-select").value = e.status;
+  if (document.activeElement !== $("#exp-budget-input")) $("#exp-budget-input").value = e.budget ?? "";
+}
+
+function renderTable() {
+  const tbody = $("#trials-table tbody");
+  const rows = trials.slice().sort((a, b) => b.index - a.index).map((t) => el("tr", {
+    class: "clickable", dataset: { trialId: t.id, status: t.status }, onclick: () => { location.href = `/trials/${t.id}`; } },
+  el("td", {}, el("a", { href: `/trials/${t.id}` }, t.index)),
+  el("td", {}, badge(t.status), t.status_reason ? el("div", { class: "small muted" }, t.status_reason) : null),
+  el("td", { class: "theta", title: (t.executed_theta || t.theta || []).join(", ") }, (t.executed_theta || t.theta || []).map((v) => v.toFixed(3)).join(", ")),
+  el("td", { class: "objective" }, fmtPm(t.objective, t.objective_sem)),
+  el("td", {}, t.n_measurements ?? 0),
+  el("td", {}, t.predicted_mean !== null && t.predicted_mean !== undefined ? fmtPm(t.predicted_mean, t.predicted_std) : "—"),
+  el("td", {}, t.confirmed_by ? `${t.created_by}; confirmed by ${t.confirmed_by}` : t.created_by || "—"),
+  el("td", {}, fmtTime(t.finished_at || t.started_at || t.created_at)),
+  el("td", {}, fmtDuration(t.duration_s))));
+  tbody.replaceChildren(...rows);
+  if (!rows.length) tbody.append(el("tr", {}, el("td", { colspan: 9, class: "muted" }, "No trials yet.")));
+}
+
+function renderNext() {
+  const t = pickNext();
+  const key = t ? `${t.id}:${t.status}:${t.n_measurements}:${t.updated_at}:${t.schedule_hash}` : "none";
+  if (key === nextKey) return;
+  nextKey = key;
+  $("#next-empty").hidden = !!t;
+  $("#next-body").hidden = !t;
+  if (!t) { $("#next-title").textContent = ""; return; }
+  const active = ACTIVE_ORDER.includes(t.status);
+  $("#next-title").textContent = `${active ? "" : "(latest) "}trial ${t.index}`;
+  $("#next-meta").replaceChildren(badge(t.status), ` θ = [${(t.theta || []).map((v) => v.toFixed(3)).join(", ")}]`,
+    t.release_step ? ` · release after step ${t.release_step}` : "",
+    t.confirmed_by ? ` · confirmed by ${t.confirmed_by} ${fmtTime(t.confirmed_at)}` : "");
+  $("#next-prediction").replaceChildren(
+    t.predicted_mean !== null && t.predicted_mean !== undefined
+      ? `GP predicts ${fmtPm(t.predicted_mean, t.predicted_std)} (mean ± std)`
+      : "No GP prediction for this trial (random initial trial, or not a BO experiment).",
+    el("div", { id: "next-preview-summary", class: "small" }));
+  scheduleHeatmap($("#heatmap"), t.pressure_schedule_pa, { title: "pressure schedule (kPa): 12 chambers × H steps", releaseStep: t.release_step, ...boundsPa(experiment) });
+  const best = incumbent();
+  renderTrialActions($("#trial-actions"), t, {
+    experiment, incumbentId: best && best.id !== t.id ? best.id : null, onChange: (msg) => { say(msg); refresh(true); },
+  });
+}
+
+async function renderModel() {
+  const empty = $("#model-empty");
+  try {
+    const model = await api("GET", `/api/experiments/${experimentId}/model`);
+    if (!model || !model.lengthscales) {
+      empty.textContent = model && model.message ? model.message : "No GP model yet (it needs completed trials and a BO experiment).";
+      $("#model-plots").hidden = true;
+      return;
+    }
+    $("#model-plots").hidden = false;
+    empty.textContent = model.message || `GP fitted on ${model.n_observations} observations; best trial ${model.incumbent_trial_id ?? "?"} (${fmt(model.incumbent_objective)}).`;
+    relevance($("#relevance-plot"), model.lengthscales);
+    slices($("#slices-plot"), model.slices || [], model.incumbent_theta);
+  } catch (err) {
+    $("#model-plots").hidden = true;
+    empty.textContent = `No model insight: ${err.message}`;
+  }
+}
+
+async function refresh(force = false) {
+  try {
+    const [e, t] = await Promise.all([
+      api("GET", `/api/experiments/${experimentId}`),
+      api("GET", `/api/experiments/${experimentId}/trials`),
+    ]);
+    experiment = e;
+    trials = listOf(t);
+    version = e.version ?? version;
+    renderHeader();
+    renderTable();
+    bestSoFar($("#best-plot"), trials);
+    if (force) nextKey = null;
+    renderNext();
+    applyRole();
+    renderModel();
+    showError("#exp-error", null);
+  } catch (err) {
+    showError("#exp-error", err);
+  }
+}
+
+async function currentVersion() {
+  try {
+    const ev = await api("GET", `/api/experiments/${experimentId}/version`);
+    if (ev && typeof ev === "object" && ev.version !== undefined) return ev.version;
+  } catch { /* fall through to the experiment's own version */ }
+  const e = await api("GET", `/api/experiments/${experimentId}`);
+  return e.version ?? e.updated_at;
+}
+
+async function poll() {
+  try {
+    const v = await currentVersion();
+    $("#live-indicator").textContent = "live";
+    if (v !== version) { version = v; await refresh(); }
+  } catch (err) {
+    $("#live-indicator").textContent = `updates paused: ${err.message}`;
+  }
+  setTimeout(poll, 2000);
+}
+
+function wireActions() {
+  $("#export-csv").onclick = () => download(`/api/experiments/${experimentId}/export?format=csv`, `experiment-${experimentId}.csv`).catch((err) => showError("#exp-error", err));
+  $("#export-json").onclick = () => download(`/api/experiments/${experimentId}/export?format=json`, `experiment-${experimentId}.json`).catch((err) => showError("#exp-error", err));
+  if (!canWrite()) return;
+  $("#suggest-button").onclick = async (ev) => {
+    ev.target.disabled = true;
+    showError("#exp-error", null);
+    try {
+      const answer = await api("POST", `/api/experiments/${experimentId}/suggest`, { body: { n: 1 } });
+      const made = listOf(answer);
+      say(made.length ? `Suggested trial ${made.map((t) => t.index).join(", ")}.` : "No new trial suggested.");
+      await refresh(true);
+    } catch (err) { showError("#exp-error", err); } finally { ev.target.disabled = false; }
+  };
+  $("#attach-toggle").onclick = () => { $("#attach-form").hidden = !$("#attach-form").hidden; };
+  $("#import-toggle").onclick = () => { $("#import-form").hidden = !$("#import-form").hidden; };
+  $("#attach-form").onsubmit = async (ev) => {
+    ev.preventDefault();
+    const parts = $("#attach-theta").value.split(/[,\s]+/).filter(Boolean);
+    const theta = parts.map(Number);
+    if (!parts.length || theta.some((v) => !Number.isFinite(v))) { showError("#exp-error", "θ must be numbers separated by commas."); return; }
+    try {
+      const t = await api("POST", `/api/experiments/${experimentId}/trials`, { body: { theta, note: $("#attach-note").value } });
+      say(`Attached trial ${t.index}.`);
+      $("#attach-form").hidden = true;
+      await refresh(true);
+    } catch (err) { showError("#exp-error", err); }
+  };
+  $("#import-form").onsubmit = async (ev) => {
+    ev.preventDefault();
+    let body;
+    try { body = JSON.parse($("#import-json").value); } catch (err) { showError("#exp-error", `Not valid JSON: ${err.message}`); return; }
+    try {
+      const answer = await api("POST", `/api/experiments/${experimentId}/import`, { body });
+      say(`Imported ${answer.imported ?? answer.count ?? (Array.isArray(answer) ? answer.length : "the")} observations.`);
+      $("#import-form").hidden = true;
+      await refresh(true);
+    } catch (err) { showError("#exp-error", err); }
+  };
+  $("#exp-save").onclick = async () => {
+    const body = { status: $("#exp-status-select").value };
+    const b = $("#exp-budget-input").value.trim();
+    if (b) {
+      const n = Number(b);
+      if (!Number.isInteger(n) || n < 1) { showError("#exp-error", "Budget must be a whole number ≥ 1."); return; }
+      body.budget = n;
+    }
+    try {
+      await api("PATCH", `/api/experiments/${experimentId}`, { body });
+      say("Experiment saved.");
+      await refresh();
+    } catch (err) { showError("#exp-error", err); }
+  };
+}
+
+requireLogin().then(async () => {
+  wireActions();
+  await refresh(true);
+  setTimeout(poll, 2000);
+});

@@ -1,0 +1,115 @@
+import { api } from "./api.js";
+import { $, clearFieldErrors, el, requireLogin, showFieldErrors } from "./ui.js";
+
+const form = $("#experiment-form");
+
+function updateDependent() {
+  const task = $("#f-task").value;
+  const hw = $("#f-target").value === "hardware";
+  $("#limits-fieldset").disabled = !hw;
+  $("#limits-fieldset").classList.toggle("muted", !hw);
+  const h = parseInt($("#f-horizon").value, 10) || 10;
+  const d = h + (task === "throw" ? 1 : 0);
+  $("#f-dim-note").textContent = `θ has D = ${d} dimensions${task === "throw" ? " (H steps + the release step)" : ""}; the paper starts with D + 1 = ${d + 1} random trials.`;
+  const method = $("#f-method").value;
+  const bo = method.startsWith("bo-");
+  $("#f-acquisition").disabled = !bo;
+  const ucb = $("#f-acquisition").value === "ucb" || (method === "bo-ucb" && !$("#f-acquisition").value);
+  $("#f-kappa").disabled = !bo || !ucb;
+}
+
+let initialTouched = false;
+$("#f-n_initial").addEventListener("input", () => { initialTouched = true; });
+$("#f-task").addEventListener("change", () => {
+  $("#f-objective_unit").value = $("#f-task").value === "tip_speed" ? "m/s" : "score";
+});
+for (const id of ["#f-task", "#f-horizon"]) {
+  $(id).addEventListener("change", () => {
+    if (!initialTouched) {
+      const h = parseInt($("#f-horizon").value, 10) || 10;
+      $("#f-n_initial").value = h + ($("#f-task").value === "throw" ? 1 : 0) + 1;
+    }
+  });
+}
+form.addEventListener("change", updateDependent);
+form.addEventListener("input", updateDependent);
+
+/** Numbers from the form; words for anything that is not one (shown next to its field). */
+function numberField(id, apiName, errors, { integer = false, scale = 1 } = {}) {
+  const raw = $(id).value.trim();
+  const v = Number(raw);
+  if (raw === "" || !Number.isFinite(v)) { errors[apiName] = `“${raw}” is not a number`; return undefined; }
+  if (integer && !Number.isInteger(v)) { errors[apiName] = `${raw} is not a whole number`; return undefined; }
+  return v * scale;
+}
+
+function collect() {
+  const errors = {};
+  const task = $("#f-task").value;
+  const target = $("#f-target").value;
+  const horizon = numberField("#f-horizon", "horizon", errors, { integer: true });
+  const body = {
+    name: $("#f-name").value.trim(),
+    task, target,
+    sim_preset: $("#f-sim_preset").value,
+    levels: numberField("#f-levels", "levels", errors, { integer: true }),
+    horizon,
+    with_release: task === "throw",
+    method: $("#f-method").value,
+    acquisition: $("#f-acquisition").disabled ? null : ($("#f-acquisition").value || null),
+    kappa: $("#f-kappa").disabled ? null : numberField("#f-kappa", "kappa", errors),
+    objective_unit: $("#f-objective_unit").value,
+    n_initial: numberField("#f-n_initial", "n_initial", errors, { integer: true }),
+    budget: numberField("#f-budget", "budget", errors, { integer: true }),
+    seed: numberField("#f-seed", "seed", errors, { integer: true }),
+    notes: $("#f-notes").value,
+  };
+  if (!body.name) errors.name = "give the experiment a name";
+  if (target === "hardware") {
+    const parts = $("#f-nominal").value.split(/[,\s]+/).filter(Boolean);
+    const nominal = parts.map(Number);
+    if (!parts.length || nominal.some((v) => !Number.isFinite(v))) {
+      errors.nominal_pa = "nominal pressures must be numbers in kPa";
+    } else if (nominal.length !== 1 && nominal.length !== 12) {
+      errors.nominal_pa = `give 1 or 12 nominal pressures, not ${nominal.length}`;
+    }
+    body.limits = {
+      nominal_pa: nominal.length === 1 ? nominal[0] * 1000 : nominal.map((v) => v * 1000),
+      max_step_pa: numberField("#f-max_step", "max_step_pa", errors, { scale: 1000 }),
+      source_pa: numberField("#f-source", "source_pa", errors, { scale: 1000 }),
+    };
+  }
+  return { body, errors };
+}
+
+form.addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  clearFieldErrors(form);
+  $("#form-error").textContent = "";
+  const { body, errors } = collect();
+  if (Object.keys(errors).length) {
+    showFieldErrors(form, errors);
+    $("#form-error").textContent = "Fix the fields marked in red.";
+    return;
+  }
+  const button = $("#create-button");
+  button.disabled = true;
+  try {
+    const exp = await api("POST", "/api/experiments", { body });
+    location.href = `/experiments/${exp.id}`;
+  } catch (err) {
+    const unplaced = showFieldErrors(form, err.fields);
+    $("#form-error").textContent = Object.keys(err.fields).length
+      ? ["The server refused some fields (marked in red).", ...unplaced].join("\n")
+      : err.message;
+  } finally {
+    button.disabled = false;
+  }
+});
+
+requireLogin().then((me) => {
+  if (me.role !== "operator") {
+    form.replaceChildren(el("p", { class: "error" }, `You are logged in as a ${me.role}: only operators can create experiments.`));
+  }
+  updateDependent();
+});

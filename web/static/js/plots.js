@@ -1,0 +1,82 @@
+// plotly.js figures: schedule heatmap, best so far, relevance, slices, trajectories.
+import { CHAMBER_NAMES, PLOT_CONFIG, plotlyAvailable } from "./ui.js";
+
+const LAYOUT = { margin: { l: 55, r: 15, t: 30, b: 40 }, font: { size: 12 }, paper_bgcolor: "#fff", plot_bgcolor: "#fff" };
+
+function draw(node, data, layout) {
+  if (!plotlyAvailable()) {
+    node.textContent = "Plots are unavailable: plotly.js did not load from /vendor/plotly.min.js.";
+    return;
+  }
+  window.Plotly.react(node, data, { ...LAYOUT, ...layout }, PLOT_CONFIG);
+}
+
+/** 12 chambers × H steps, kPa. schedule: (H, 12) Pa. */
+export function scheduleHeatmap(node, schedule, { title = "", releaseStep = null, lowerPa = null, upperPa = null } = {}) {
+  const h = schedule.length;
+  const z = CHAMBER_NAMES.map((_, c) => schedule.map((row) => row[c] / 1000));
+  const shapes = [];
+  if (releaseStep) {
+    shapes.push({ type: "line", x0: releaseStep + 0.5, x1: releaseStep + 0.5, y0: -0.5, y1: 11.5, line: { color: "#111", width: 2, dash: "dot" } });
+  }
+  draw(node, [{
+    type: "heatmap", z, x: Array.from({ length: h }, (_, i) => i + 1), y: CHAMBER_NAMES,
+    colorscale: "Viridis", zmin: lowerPa !== null ? lowerPa / 1000 : undefined, zmax: upperPa !== null ? upperPa / 1000 : undefined,
+    colorbar: { title: { text: "kPa" } },
+    hovertemplate: "step %{x}, chamber %{y}: %{z:.1f} kPa<extra></extra>",
+  }], {
+    title: { text: title, font: { size: 13 } },
+    xaxis: { title: { text: `control step (each ${(5 / h).toFixed(2)} s)${releaseStep ? `; dotted: release after step ${releaseStep}` : ""}` }, dtick: 1 },
+    yaxis: { autorange: "reversed" },
+    shapes,
+  });
+}
+
+/** Each completed trial's objective ± SEM and the running best. */
+export function bestSoFar(node, trials) {
+  const done = trials.filter((t) => t.status === "completed" && t.objective !== null && t.objective !== undefined)
+    .sort((a, b) => a.index - b.index);
+  let best = -Infinity;
+  const bestY = done.map((t) => (best = Math.max(best, t.objective)));
+  draw(node, [
+    { type: "scatter", mode: "markers", name: "trial (± SEM)", x: done.map((t) => t.index), y: done.map((t) => t.objective),
+      error_y: { type: "data", array: done.map((t) => t.objective_sem ?? 0), visible: true },
+      text: done.map((t) => `trial ${t.index}`), marker: { size: 8, color: "#1f5eea" } },
+    { type: "scatter", mode: "lines", name: "best so far", x: done.map((t) => t.index), y: bestY, line: { shape: "hv", color: "#d9480f", width: 2 } },
+  ], {
+    xaxis: { title: { text: "trial" } }, yaxis: { title: { text: "objective" } },
+    legend: { orientation: "h", y: 1.12 },
+    annotations: done.length ? [] : [{ text: "no completed trial yet", showarrow: false, xref: "paper", yref: "paper", x: 0.5, y: 0.5 }],
+  });
+  return done.length;
+}
+
+export function relevance(node, lengthscales) {
+  const rel = lengthscales.map((l) => 1 / l);
+  draw(node, [{ type: "bar", x: rel.map((_, i) => `θ${i}`), y: rel, marker: { color: "#1f5eea" },
+    hovertemplate: "%{x}: relevance %{y:.3g}<extra></extra>" }],
+  { title: { text: "relevance (1 / lengthscale)", font: { size: 13 } }, yaxis: { title: { text: "1 / ℓ" } } });
+}
+
+/** slices: [{dim, x, mean, std}] posterior slices through the incumbent. */
+export function slices(node, sl, incumbent) {
+  const data = [];
+  sl.forEach((s, i) => {
+    const x = s.x || s.grid || s.theta;
+    const mean = s.mean; const std = s.std || mean.map(() => 0);
+    const dim = s.dim ?? s.dimension ?? i;
+    data.push({ type: "scatter", mode: "lines", name: `θ${dim}`, x, y: mean, legendgroup: `d${dim}`,
+      error_y: undefined, hovertemplate: `θ${dim}=%{x:.3f}: mean %{y:.3g}<extra></extra>` });
+    data.push({ type: "scatter", mode: "lines", x: [...x, ...x.slice().reverse()],
+      y: [...mean.map((m, j) => m + 2 * std[j]), ...mean.map((m, j) => m - 2 * std[j]).reverse()],
+      fill: "toself", opacity: 0.12, line: { width: 0 }, showlegend: false, legendgroup: `d${dim}`, hoverinfo: "skip" });
+  });
+  draw(node, data, { title: { text: "posterior mean ± 2 std along each θ, through the best trial", font: { size: 13 } },
+    xaxis: { title: { text: "θ value" }, range: [0, 1] }, yaxis: { title: { text: "predicted objective" } },
+    legend: { font: { size: 10 } }, shapes: [] , meta: incumbent });
+}
+
+export function line(node, x, y, { title, ytitle }) {
+  draw(node, [{ type: "scatter", mode: "lines", x, y, line: { color: "#1f5eea" } }],
+    { title: { text: title, font: { size: 13 } }, xaxis: { title: { text: "time (s)" } }, yaxis: { title: { text: ytitle } } });
+}

@@ -1,0 +1,106 @@
+import { api } from "./api.js";
+import { renderTrialActions } from "./actions.js";
+import { line, scheduleHeatmap } from "./plots.js";
+import { $, applyRole, badge, el, fmt, fmtDuration, fmtPm, fmtTime, requireLogin, showError } from "./ui.js";
+import { openReplay } from "./viz.js";
+
+const trialId = window.HANDFUL.trialId;
+let lastKey = null;
+
+function fact(term, value) {
+  return [el("dt", {}, term), el("dd", {}, value ?? "—")];
+}
+
+function renderFacts(t, e) {
+  $("#trial-title").textContent = `Trial ${t.index} of `;
+  $("#trial-title").append(el("a", { href: `/experiments/${e.id}` }, e.name || `experiment ${e.id}`));
+  document.title = `Trial ${t.index} · handful`;
+  $("#trial-status").replaceChildren(t.status.replace(/_/g, " "));
+  $("#trial-status").className = `badge ${t.status}`;
+  $("#trial-summary").textContent = `${e.task} on ${e.target}; source: ${t.source || "?"}${t.note ? `; note: ${t.note}` : ""}`;
+  $("#trial-facts").replaceChildren(
+    ...fact("Objective ± SEM", fmtPm(t.objective, t.objective_sem)),
+    ...fact("Measurements", String(t.n_measurements ?? 0)),
+    ...fact("GP prediction", t.predicted_mean !== null && t.predicted_mean !== undefined ? fmtPm(t.predicted_mean, t.predicted_std) : "—"),
+    ...fact("Status reason", t.status_reason || "—"),
+    ...fact("θ planned", `[${(t.theta || []).map((v) => v.toFixed(4)).join(", ")}]`),
+    ...fact("θ executed", t.executed_theta ? `[${t.executed_theta.map((v) => v.toFixed(4)).join(", ")}]` : "—"),
+    ...fact("Release step (planned / executed)", `${t.release_step ?? "—"} / ${t.executed_release_step ?? "—"}`),
+    ...fact("Schedule hash", t.schedule_hash ? `${t.schedule_hash.slice(0, 16)}…` : "—"),
+    ...fact("Confirmed", t.confirmed_by ? `by ${t.confirmed_by}, ${fmtTime(t.confirmed_at)}` : "—"),
+    ...fact("Attempts", String(t.attempts ?? 0)),
+    ...fact("Created", `${t.created_by || "?"}, ${fmtTime(t.created_at)}`),
+    ...fact("Ran", `${fmtTime(t.started_at)} → ${fmtTime(t.finished_at)} (${fmtDuration(t.duration_s)})`));
+}
+
+function renderSchedules(t) {
+  scheduleHeatmap($("#planned-heatmap"), t.pressure_schedule_pa, { releaseStep: t.release_step });
+  if (t.executed_pressure_schedule_pa) {
+    const differs = JSON.stringify(t.executed_pressure_schedule_pa) !== JSON.stringify(t.pressure_schedule_pa);
+    $("#executed-note").textContent = differs ? "The executed schedule differs from the plan; the GP is fitted on what was executed." : "Executed as planned.";
+    scheduleHeatmap($("#executed-heatmap"), t.executed_pressure_schedule_pa, { releaseStep: t.executed_release_step });
+  } else {
+    $("#executed-note").textContent = "Not executed yet.";
+    $("#executed-heatmap").replaceChildren();
+  }
+}
+
+function renderMeasurements(t) {
+  const ms = t.measurements || [];
+  const rows = ms.map((m, i) => el("tr", {},
+    el("td", {}, i + 1), el("td", { class: "m-value" }, fmt(m.value, 4)), el("td", {}, m.unit),
+    el("td", {}, m.source || "—"), el("td", {}, m.created_by || "—"), el("td", {}, fmtTime(m.created_at)), el("td", {}, m.note || "")));
+  $("#measurements-table tbody").replaceChildren(...rows);
+  if (!rows.length) $("#measurements-table tbody").append(el("tr", {}, el("td", { colspan: 7, class: "muted" }, "No measurement yet.")));
+}
+
+function renderAudit(t) {
+  const entries = t.audit || t.audit_trail || t.audit_log || [];
+  const rows = entries.map((a) => el("tr", {},
+    el("td", {}, fmtTime(a.at || a.created_at)), el("td", {}, a.actor || "—"), el("td", {}, a.action),
+    el("td", {}, a.before || a.after ? `${a.before ?? "—"} → ${a.after ?? "—"}` : ""),
+    el("td", { class: "small" }, a.detail ? JSON.stringify(a.detail) : "")));
+  $("#audit-table tbody").replaceChildren(...rows);
+  if (!rows.length) $("#audit-table tbody").append(el("tr", {}, el("td", { colspan: 5, class: "muted" }, "No audit entries returned.")));
+}
+
+async function renderTrajectory(t) {
+  const note = $("#trajectory-note");
+  if (!t.has_trajectory) { note.textContent = "No recorded trajectory for this trial (yet). The 3D replay simulates its schedule."; return; }
+  try {
+    const tr = await api("GET", `/api/trials/${t.id}/trajectory?format=json`);
+    const time = tr.time_s;
+    note.textContent = `${time.length} samples over ${fmt(time[time.length - 1], 2)} s.`;
+    if (tr.tip_speed_m_s) line($("#speed-plot"), time, tr.tip_speed_m_s, { title: "tip speed", ytitle: "m/s" });
+    if (tr.tip_pos_m) line($("#height-plot"), time, tr.tip_pos_m.map((p) => p[2]), { title: "tip height", ytitle: "m" });
+    if (tr.plate_force_n) line($("#force-plot"), time, tr.plate_force_n, { title: "plate force", ytitle: "N" });
+  } catch (err) {
+    note.textContent = `Trajectory not shown: ${err.message}`;
+  }
+}
+
+async function load(force = false) {
+  try {
+    const t = await api("GET", `/api/trials/${trialId}`);
+    const key = `${t.status}:${t.n_measurements}:${t.updated_at}:${(t.measurements || []).length}`;
+    if (!force && key === lastKey) return;
+    lastKey = key;
+    const e = await api("GET", `/api/experiments/${t.experiment_id}`);
+    renderFacts(t, e);
+    renderSchedules(t);
+    renderMeasurements(t);
+    renderAudit(t);
+    renderTrajectory(t);
+    renderTrialActions($("#trial-actions"), t, { experiment: e, incumbentId: null, onChange: (msg) => { showError("#trial-error", null); $("#trial-summary").textContent = msg; load(true); } });
+    $("#replay-button").onclick = () => openReplay(t, null);
+    applyRole();
+    showError("#trial-error", null);
+  } catch (err) {
+    showError("#trial-error", err);
+  }
+}
+
+requireLogin().then(async () => {
+  await load(true);
+  setInterval(() => load(false), 3000);
+});

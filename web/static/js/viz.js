@@ -1,0 +1,97 @@
+// The 3D card: runs a preview job (with progress) or asks for a replay, then embeds viser.
+import { api } from "./api.js";
+import { $, el, fmt } from "./ui.js";
+
+let generation = 0; // a newer request supersedes an older one still polling
+
+function card() {
+  const c = $("#viz-card");
+  c.hidden = false;
+  $("#viz-close").onclick = () => { generation++; c.hidden = true; $("#viz-frame-holder").replaceChildren(); };
+  return c;
+}
+
+function progress(fraction, label) {
+  const p = $("#viz-progress");
+  p.hidden = fraction === null;
+  if (fraction !== null) {
+    p.querySelector(".bar").style.width = `${Math.round(Math.max(0, Math.min(1, fraction)) * 100)}%`;
+    p.querySelector(".label").textContent = label;
+  }
+}
+
+function viserUrl(port, key) {
+  const host = location.hostname.includes(":") ? `[${location.hostname}]` : location.hostname;
+  const ws = `${location.protocol === "https:" ? "wss" : "ws"}://${host}:${port}/view/${key}`;
+  return `${location.protocol}//${host}:${port}/?websocket=${ws}&hideViserLogo`;
+}
+
+async function embed(body, legend, gen) {
+  progress(0.95, "drawing the arm in 3D…");
+  const view = await api("POST", "/viz/views", { body });
+  if (gen !== generation) return;
+  progress(null);
+  $("#viz-legend").textContent = [legend, view.overlay_label ? `Overlay (blue, see-through): ${view.overlay_label}.` : ""].filter(Boolean).join(" ");
+  $("#viz-frame-holder").replaceChildren(el("iframe", {
+    id: "viz-frame", src: viserUrl(view.port, view.key), title: `3D view: ${view.label}`, allow: "fullscreen",
+  }));
+}
+
+const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
+
+/** Preview: a sim rollout of exactly this trial's schedule, run by the server's preview jobs. */
+export async function openPreview(trial, incumbentId) {
+  const gen = ++generation;
+  card();
+  $("#viz-title").textContent = `preview of trial ${trial.index ?? trial.id}`;
+  $("#viz-error").textContent = "";
+  $("#viz-legend").textContent = "";
+  $("#viz-frame-holder").replaceChildren();
+  progress(0.02, "asking the server for a preview…");
+  try {
+    const { job_id: jobId } = await api("POST", `/api/trials/${trial.id}/preview`);
+    const started = Date.now();
+    let job;
+    for (;;) {
+      if (gen !== generation) return;
+      job = await api("GET", `/api/previews/${jobId}`);
+      const status = job.status;
+      if (["failed", "error"].includes(status)) throw new Error(`the preview failed: ${job.error || job.detail || "no reason given"}`);
+      if (["done", "completed", "succeeded", "finished"].includes(status)) break;
+      const f = typeof job.progress === "number" ? job.progress : Math.min(0.9, (Date.now() - started) / 20000);
+      progress(0.05 + 0.85 * f, `${status || "running"}: simulating 5 s of motion… ${Math.round(f * 100)}%`);
+      await sleep(400);
+    }
+    const result = job.result || job;
+    const hits = result.bend_limit_hits || [];
+    const words = [
+      `Sim preview of trial ${trial.index ?? trial.id}: predicted max tip speed ${fmt(result.predicted_tip_speed)} m/s.`,
+      hits.length ? `WARNING: joint${hits.length > 1 ? "s" : ""} ${hits.join(", ")} would reach the bend limit.` : "No joint reaches its bend limit.",
+    ];
+    $("#next-preview-summary")?.replaceChildren(words.join(" "));
+    await embed({ trial_id: trial.id, preview_job_id: jobId, overlay_trial_id: incumbentId ?? null }, words.join(" "), gen);
+  } catch (err) {
+    if (gen !== generation) return;
+    progress(null);
+    $("#viz-error").textContent = `Preview not shown: ${err.message}`;
+  }
+}
+
+/** Replay a trial (its recorded motion, or a sim of what it ran), optionally with an overlay. */
+export async function openReplay(trial, overlayId) {
+  const gen = ++generation;
+  card();
+  $("#viz-title").textContent = `trial ${trial.index ?? trial.id}`;
+  $("#viz-error").textContent = "";
+  $("#viz-frame-holder").replaceChildren();
+  progress(0.3, "preparing the replay…");
+  try {
+    const overlay = overlayId && overlayId !== trial.id ? overlayId : null;
+    await embed({ trial_id: trial.id, overlay_trial_id: overlay }, "", gen);
+  } catch (err) {
+    if (gen !== generation) return;
+    progress(null);
+    $("#viz-error").textContent = `Replay not shown: ${err.message}`;
+  }
+  card().scrollIntoView({ behavior: "smooth", block: "start" });
+}
