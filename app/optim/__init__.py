@@ -1,0 +1,83 @@
+"""Ask/tell optimisers over the policy's unit box: BoTorch BO and the paper's baselines and peers.
+
+opt = make_optimizer("bo-lei", dim=11, seed=0)
+theta = opt.suggest(1)          # (1, 11) in [0, 1]
+opt.observe(theta[0], 17.3)     # or observe_many([Observation(...), ...]) to rebuild
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from app.optim.base import (
+    Observation,
+    ObservationError,
+    OptimError,
+    Optimizer,
+    SettingsError,
+)
+from app.optim.baselines import CEM, CMAES, OptunaSampler, RandomSearch
+from app.optim.bo import BayesOpt
+
+# BO variants: method name → fixed settings (a caller's settings may override them).
+BO_METHODS: dict[str, dict[str, Any]] = {
+    "bo-lei": {"acquisition": "logei", "model_preset": "paper"},
+    "bo-ucb": {"acquisition": "ucb", "model_preset": "paper", "kappa": 0.9},
+    "bo-lei-default": {"acquisition": "logei", "model_preset": "default"},
+    # handful's default: GP over the pressure levels, bang-bang-rich initial design,
+    # acquisition optimised on the level grid (needs levels=P).
+    "bo-handful": {
+        "acquisition": "logei",
+        "model_preset": "default",
+        "space": "levels",
+        "initial_design": "corners",
+        "raw_samples": 1024,
+    },
+}
+BASELINE_METHODS = ("cem", "random", "optuna-tpe", "optuna-gp", "cmaes")
+METHODS: tuple[str, ...] = (*BO_METHODS, *BASELINE_METHODS)
+# Methods whose settings need the policy's P (levels=…); the benchmark passes it.
+NEEDS_LEVELS = frozenset({"bo-handful"})
+
+
+def make_optimizer(method: str, dim: int, *, seed: int, **settings: Any) -> Optimizer:
+    """Build an optimiser by name (one of ``METHODS``) for θ ∈ [0,1]^dim.
+
+    Raises:
+        SettingsError (a ValueError): unknown method or a bad setting.
+    """
+    if method not in METHODS:
+        raise SettingsError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
+    try:
+        if method in BO_METHODS:
+            opt: Optimizer = BayesOpt(dim, seed=seed, **{**BO_METHODS[method], **settings})
+        elif method == "cem":
+            opt = CEM(dim, seed=seed, **settings)
+        elif method == "random":
+            opt = RandomSearch(dim, seed=seed, **settings)
+        elif method == "cmaes":
+            opt = CMAES(dim, seed=seed, **settings)
+        else:
+            opt = OptunaSampler(dim, seed=seed, sampler=method.split("-")[1], **settings)
+    except TypeError as exc:  # an unexpected keyword: name it as a bad setting
+        raise SettingsError(f"{method}: {exc}") from None
+    opt.method = method
+    return opt
+
+
+__all__ = [
+    "BO_METHODS",
+    "CEM",
+    "CMAES",
+    "METHODS",
+    "NEEDS_LEVELS",
+    "BayesOpt",
+    "Observation",
+    "ObservationError",
+    "OptimError",
+    "Optimizer",
+    "OptunaSampler",
+    "RandomSearch",
+    "SettingsError",
+    "make_optimizer",
+]

@@ -1,0 +1,384 @@
+"""Bayesian optimisation with BoTorch behind the ask/tell protocol.
+
+The GP is rebuilt and refit (``fit_gpytorch_mll``) from all observations whenever a suggestion
+or prediction needs it, so a rebuilt optimiser and a live one give the same answers.
+
+Two search representations:
+  * ``space="theta"`` (the paper): the GP models J(θ) on the unit box [0,1]^D directly.
+  * ``space="levels"`` (handful's variant): each θ_i is decoded to the six paired-command levels
+    of its action (``g``'s digits, each scaled to [0,1]) and the release step to [0,1], so the
+    GP sees pressures rather than action indices; the acquisition is optimised over the level
+    grid by discrete local search and the result is mapped back to the centre of its θ bin.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import warnings
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from botorch.acquisition import (
+    AcquisitionFunction,
+    LogExpectedImprovement,
+    qLogNoisyExpectedImprovement,
+    qUpperConfidenceBound,
+)
+from botorch.acquisition.analytic import UpperConfidenceBound
+from botorch.fit import fit_gpytorch_mll
+from botorch.models import SingleTaskGP
+from botorch.models.transforms import Normalize, Standardize
+from botorch.models.utils.gpytorch_modules import (
+    get_gaussian_likelihood_with_gamma_prior,
+    get_matern_kernel_with_gamma_prior,
+)
+from botorch.optim import optimize_acqf, optimize_acqf_discrete_local_search
+from botorch.sampling import SobolQMCNormalSampler
+from gpytorch.mlls import ExactMarginalLogLikelihood
+
+from app.optim.base import Optimizer, SettingsError, call_seed
+
+ACQUISITIONS = ("logei", "ucb", "qlognei")
+MODEL_PRESETS = ("paper", "default")
+SPACES = ("theta", "levels")
+INITIAL_DESIGNS = ("sobol", "corners")
+N_PAIRED = 6  # paired commands per action (see app.policy)
+
+DTYPE = torch.float64
+# Torch's RNG is process-global; fork it per call under a lock so threads cannot interleave.
+_TORCH_RNG_LOCK = threading.Lock()
+
+
+@dataclass(frozen=True)
+class BOSettings:
+    """Validated BO settings (see ``BayesOpt``)."""
+
+    acquisition: str = "logei"
+    kappa: float = 0.9
+    n_initial: int | None = None
+    model_preset: str = "paper"
+    num_restarts: int = 10
+    raw_samples: int = 512
+    mc_samples: int = 128
+    space: str = "theta"
+    levels: int | None = None
+    horizon: int = 10
+    initial_design: str = "sobol"
+    corner_prob: float = 0.5
+
+
+def _check_settings(dim: int, settings: dict[str, Any]) -> BOSettings:
+    known = set(BOSettings.__dataclass_fields__)
+    unknown = sorted(set(settings) - known)
+    if unknown:
+        raise SettingsError(
+            f"unknown BO setting(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}"
+        )
+    s = BOSettings(**settings)
+    if s.acquisition not in ACQUISITIONS:
+        raise SettingsError(f"acquisition must be one of {ACQUISITIONS}, got {s.acquisition!r}")
+    if s.model_preset not in MODEL_PRESETS:
+        raise SettingsError(f"model_preset must be one of {MODEL_PRESETS}, got {s.model_preset!r}")
+    if s.space not in SPACES:
+        raise SettingsError(f"space must be one of {SPACES}, got {s.space!r}")
+    if s.initial_design not in INITIAL_DESIGNS:
+        raise SettingsError(
+            f"initial_design must be one of {INITIAL_DESIGNS}, got {s.initial_design!r}"
+        )
+    if not (isinstance(s.kappa, int | float) and math.isfinite(s.kappa) and s.kappa >= 0):
+        raise SettingsError(f"kappa must be a finite number ≥ 0, got {s.kappa!r}")
+    for name in ("num_restarts", "raw_samples", "mc_samples", "horizon"):
+        v = getattr(s, name)
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise SettingsError(f"{name} must be an integer ≥ 1, got {v!r}")
+    if s.n_initial is not None and (
+        isinstance(s.n_initial, bool) or not isinstance(s.n_initial, int) or s.n_initial < 2
+    ):
+        raise SettingsError(f"n_initial must be an integer ≥ 2, got {s.n_initial!r}")
+    if not 0.0 <= s.corner_prob <= 1.0:
+        raise SettingsError(f"corner_prob must be in [0, 1], got {s.corner_prob!r}")
+    if s.space == "levels" or s.initial_design == "corners":
+        if s.levels is None or isinstance(s.levels, bool) or not isinstance(s.levels, int):
+            raise SettingsError(
+                "space='levels' and initial_design='corners' need levels=P (an integer ≥ 2)"
+            )
+        if s.levels < 2:
+            raise SettingsError(f"levels (P) must be an integer ≥ 2, got {s.levels}")
+        if dim not in (s.horizon, s.horizon + 1):
+            raise SettingsError(
+                f"dim {dim} must be horizon ({s.horizon}) or horizon + 1 (with release step)"
+            )
+    return s
+
+
+class LevelSpace:
+    """θ (D,) ↔ features (F,) = per-step paired-command levels / (P−1), plus release / (H−1).
+
+    Mirrors ``app.policy.Policy.actions_from_theta`` (C-order digits, first most significant).
+    """
+
+    def __init__(self, levels: int, horizon: int, with_release: bool) -> None:
+        self.levels = levels
+        self.horizon = horizon
+        self.with_release = with_release
+        self.n_actions = levels**N_PAIRED
+        self.n_features = horizon * N_PAIRED + int(with_release)
+
+    def to_features(self, theta: np.ndarray) -> np.ndarray:
+        """(N, D) θ → (N, F) features on the level grid in [0,1]."""
+        th = np.atleast_2d(theta)
+        a = np.minimum(np.floor(th[:, : self.horizon] * self.n_actions), self.n_actions - 1)
+        digits = np.stack(
+            np.unravel_index(a.astype(np.int64), (self.levels,) * N_PAIRED), axis=-1
+        )  # (N, H, 6)
+        feats = digits.reshape(th.shape[0], -1) / (self.levels - 1)
+        if self.with_release:
+            r = np.minimum(np.floor(th[:, self.horizon] * self.horizon), self.horizon - 1)
+            feats = np.concatenate([feats, (r / max(self.horizon - 1, 1))[:, None]], axis=1)
+        return feats
+
+    def to_theta(self, feats: np.ndarray) -> np.ndarray:
+        """(N, F) features (snapped to the grid) → (N, D) θ at the centres of their bins."""
+        f = np.atleast_2d(feats)
+        n = f.shape[0]
+        digits = np.rint(np.clip(f[:, : self.horizon * N_PAIRED], 0, 1) * (self.levels - 1))
+        digits = digits.astype(np.int64).reshape(n, self.horizon, N_PAIRED)
+        a = np.ravel_multi_index(tuple(np.moveaxis(digits, -1, 0)), (self.levels,) * N_PAIRED)
+        theta = (a + 0.5) / self.n_actions
+        if self.with_release:
+            r = np.rint(np.clip(f[:, -1], 0, 1) * max(self.horizon - 1, 1))
+            theta = np.concatenate([theta, ((r + 0.5) / self.horizon)[:, None]], axis=1)
+        return theta
+
+    def choices(self) -> list[torch.Tensor]:
+        """The grid values of each feature (for discrete local search)."""
+        lv = torch.linspace(0, 1, self.levels, dtype=DTYPE)
+        out = [lv] * (self.horizon * N_PAIRED)
+        if self.with_release:
+            out.append(torch.linspace(0, 1, self.horizon, dtype=DTYPE))
+        return out
+
+
+def build_gp(
+    train_x: torch.Tensor,
+    train_y: torch.Tensor,
+    train_yvar: torch.Tensor | None,
+    model_preset: str,
+) -> SingleTaskGP:
+    """A SingleTaskGP on (N, F) inputs in [0,1] and (N, 1) outcomes; not yet fitted.
+
+    ``paper``: ARD Matérn-5/2 in a ScaleKernel with BoTorch's older Gamma priors
+    (lengthscale Gamma(3, 6), outputscale Gamma(2, 0.15), noise Gamma(1.1, 0.05)).
+    ``default``: today's SingleTaskGP default (RBF, dimension-scaled LogNormal priors).
+    """
+    f = train_x.shape[-1]
+    kwargs: dict[str, Any] = {
+        "input_transform": Normalize(d=f, bounds=_unit_bounds(f)),
+        "outcome_transform": Standardize(m=1),
+    }
+    if model_preset == "paper":
+        kwargs["covar_module"] = get_matern_kernel_with_gamma_prior(ard_num_dims=f)
+        if train_yvar is None:
+            kwargs["likelihood"] = get_gaussian_likelihood_with_gamma_prior()
+    return SingleTaskGP(train_x, train_y, train_yvar, **kwargs)
+
+
+def fit_gp(model: SingleTaskGP) -> SingleTaskGP:
+    """Fit the GP's hyperparameters by L-BFGS-B on the marginal likelihood (BoTorch retries)."""
+    mll = ExactMarginalLogLikelihood(model.likelihood, model)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit_gpytorch_mll(mll)
+    model.eval()
+    return model
+
+
+def _unit_bounds(f: int) -> torch.Tensor:
+    return torch.stack([torch.zeros(f, dtype=DTYPE), torch.ones(f, dtype=DTYPE)])
+
+
+class BayesOpt(Optimizer):
+    """GP-based BO on [0,1]^dim.
+
+    Settings:
+        acquisition: "logei" (LogEI; qLogNEI when trials are pending, observations carry SEM
+            or n > 1), "ucb" (μ + √κ σ: BoTorch's UCB with beta = κ; qUCB with pending or
+            n > 1) or "qlognei" (always).
+        kappa: κ of UCB (0.9).
+        n_initial: Sobol initial trials before the GP is used (D + 1).
+        model_preset: "paper" or "default" (see ``build_gp``).
+        num_restarts, raw_samples: of the acquisition optimiser.
+        mc_samples: QMC samples of the q-acquisitions.
+        space: "theta" (paper) or "levels" (needs ``levels``; see the module docstring).
+        levels, horizon: P and H of the policy, for ``space="levels"``.
+        initial_design: "sobol", or "corners" (Sobol on the level grid with each level pushed
+            to its lowest/highest value with probability ``corner_prob``: bang-bang actions).
+    """
+
+    method = "bo"
+
+    def __init__(self, dim: int, *, seed: int, **settings: Any) -> None:
+        super().__init__(dim, seed=seed)
+        self.settings = _check_settings(self.dim, settings)
+        s = self.settings
+        self.n_initial = s.n_initial if s.n_initial is not None else self.dim + 1
+        self.space: LevelSpace | None = None
+        if s.space == "levels" or s.initial_design == "corners":
+            self.space = LevelSpace(s.levels or 2, s.horizon, self.dim == s.horizon + 1)
+        self._model: SingleTaskGP | None = None
+        self._model_n = -1
+
+    # --- representation -----------------------------------------------------------------------
+    @property
+    def _use_levels(self) -> bool:
+        return self.settings.space == "levels"
+
+    def _features(self, theta: np.ndarray) -> np.ndarray:
+        if self._use_levels:
+            assert self.space is not None
+            return self.space.to_features(theta)
+        return np.atleast_2d(theta)
+
+    # --- model --------------------------------------------------------------------------------
+    def _on_observe(self) -> None:
+        self._model = None
+
+    def _train_tensors(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        x, y, sem = self.train_data()
+        tx = torch.as_tensor(self._features(x), dtype=DTYPE)
+        ty = torch.as_tensor(y, dtype=DTYPE).unsqueeze(-1)
+        if sem is None:
+            return tx, ty, None
+        known = sem[np.isfinite(sem)]
+        # Observations without an SEM get the median known one; none may be exactly noise-free.
+        filled = np.where(np.isfinite(sem), sem, np.median(known))
+        floor = 1e-6 * max(float(np.var(y)), 1e-12)
+        yvar = np.maximum(filled**2, floor)
+        return tx, ty, torch.as_tensor(yvar, dtype=DTYPE).unsqueeze(-1)
+
+    def model(self) -> SingleTaskGP:
+        """The GP fitted to all observations so far (refit after any new observation)."""
+        if self.n_observed < 2:
+            raise SettingsError("the GP needs at least 2 observations")
+        if self._model is None or self._model_n != self.n_observed:
+            tx, ty, tyvar = self._train_tensors()
+            with _TORCH_RNG_LOCK, torch.random.fork_rng():
+                torch.manual_seed(call_seed(self.seed, self.n_observed, 0, salt=1))
+                self._model = fit_gp(build_gp(tx, ty, tyvar, self.settings.model_preset))
+            self._model_n = self.n_observed
+        return self._model
+
+    def predict(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Posterior mean (n,) and std (n,) of J at θ (n, dim), in objective units."""
+        th = self._check_theta(theta)
+        x = torch.as_tensor(self._features(th), dtype=DTYPE)
+        with torch.no_grad():
+            post = self.model().posterior(x)
+            mean = post.mean.squeeze(-1).numpy().copy()
+            std = post.variance.clamp_min(0).sqrt().squeeze(-1).numpy().copy()
+        return mean, std
+
+    def feature_lengthscales(self) -> np.ndarray:
+        """(F,) fitted lengthscales of the GP's inputs (θ dims, or level features)."""
+        covar = self.model().covar_module
+        kernel = getattr(covar, "base_kernel", covar)
+        return kernel.lengthscale.detach().reshape(-1).numpy().copy()
+
+    def lengthscales(self) -> np.ndarray:
+        """(dim,) fitted lengthscale per θ dimension (levels space: the shortest of its step)."""
+        ls = self.feature_lengthscales()
+        if not self._use_levels:
+            return ls
+        h = self.settings.horizon
+        per_step = ls[: h * N_PAIRED].reshape(h, N_PAIRED).min(axis=1)
+        return np.concatenate([per_step, ls[h * N_PAIRED :]])
+
+    # --- asking --------------------------------------------------------------------------------
+    def _initial_points(self, start: int, count: int) -> np.ndarray:
+        """Points ``start .. start+count`` of this seed's initial design, (count, dim)."""
+        s = self.settings
+        if s.initial_design == "sobol" and not self._use_levels:
+            engine = torch.quasirandom.SobolEngine(self.dim, scramble=True, seed=self.seed)
+            return engine.draw(start + count, dtype=DTYPE)[start:].numpy()
+        assert self.space is not None
+        f = self.space.n_features
+        engine = torch.quasirandom.SobolEngine(f, scramble=True, seed=self.seed)
+        u = engine.draw(start + count, dtype=DTYPE)[start:].numpy()
+        if s.initial_design == "corners":
+            rng = np.random.default_rng([self.seed & 0xFFFFFFFF, 7, start, count])
+            flip = rng.random(u.shape) < s.corner_prob
+            u = np.where(flip, np.rint(rng.random(u.shape)), u)
+        n_level_feats = self.space.horizon * N_PAIRED
+        levels = np.floor(u[:, :n_level_feats] * self.space.levels).clip(0, self.space.levels - 1)
+        u[:, :n_level_feats] = levels / (self.space.levels - 1)
+        if self.space.with_release:
+            h = self.space.horizon
+            u[:, -1] = np.floor(u[:, -1] * h).clip(0, h - 1) / max(h - 1, 1)
+        return self.space.to_theta(u)
+
+    def _suggest(self, n: int, pending: np.ndarray) -> np.ndarray:
+        start = self.n_observed + len(pending)
+        n_init = max(0, min(n, self.n_initial - start))
+        if self.n_observed < 2:
+            n_init = n
+        out = [self._initial_points(start, n_init)] if n_init else []
+        if n_init < n:
+            pend = np.concatenate([pending, *out]) if out else pending
+            out.append(self._acquire(n - n_init, pend))
+        return np.concatenate(out)
+
+    def _acquisition(self, model: SingleTaskGP, pending: torch.Tensor | None, q: int, seed: int):
+        s = self.settings
+        _, y, sem = self.train_data()
+        tx, _, _ = self._train_tensors()
+        batch = pending is not None or q > 1
+        sampler = SobolQMCNormalSampler(torch.Size([s.mc_samples]), seed=seed)
+        acq: AcquisitionFunction
+        if s.acquisition == "ucb":
+            if batch:
+                acq = qUpperConfidenceBound(model, beta=s.kappa, sampler=sampler, X_pending=pending)
+            else:
+                acq = UpperConfidenceBound(model, beta=s.kappa)
+        elif s.acquisition == "qlognei" or batch or sem is not None:
+            acq = qLogNoisyExpectedImprovement(
+                model, X_baseline=tx, sampler=sampler, X_pending=pending, prune_baseline=True
+            )
+        else:
+            acq = LogExpectedImprovement(model, best_f=float(y.max()))
+        return acq
+
+    def _acquire(self, q: int, pending: np.ndarray) -> np.ndarray:
+        s = self.settings
+        seed = call_seed(self.seed, self.n_observed, len(pending))
+        model = self.model()
+        pend = torch.as_tensor(self._features(pending), dtype=DTYPE) if len(pending) else None
+        with _TORCH_RNG_LOCK, torch.random.fork_rng():
+            torch.manual_seed(seed)
+            acq = self._acquisition(model, pend, q, seed)
+            if self._use_levels:
+                assert self.space is not None
+                seen = [self._train_tensors()[0]]
+                if pend is not None:
+                    seen.append(pend)
+                cand, _ = optimize_acqf_discrete_local_search(
+                    acq,
+                    discrete_choices=self.space.choices(),
+                    q=q,
+                    num_restarts=s.num_restarts,
+                    raw_samples=s.raw_samples,
+                    X_avoid=torch.cat(seen),
+                )
+                return self.space.to_theta(cand.detach().numpy())
+            cand, _ = optimize_acqf(
+                acq,
+                bounds=_unit_bounds(self.dim),
+                q=q,
+                num_restarts=s.num_restarts,
+                raw_samples=s.raw_samples,
+                sequential=q > 1,
+                options={"seed": seed},
+            )
+        return cand.detach().numpy()
