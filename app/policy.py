@@ -237,7 +237,7 @@ class Policy:
         outside = np.flatnonzero((th < 0.0) | (th > 1.0))
         if outside.size:
             i = int(outside[0])
-            raise PolicyError(f"θ[{i}] = {th[i]!r} is outside [0, 1]")
+            raise PolicyError(f"θ[{i}] = {float(th[i])!r} is outside [0, 1]")
         return th
 
     def actions_from_theta(self, theta: np.ndarray) -> tuple[np.ndarray, int | None]:

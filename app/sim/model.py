@@ -375,17 +375,19 @@ def _add_plate(spec: mujoco.MjSpec, params: ArmParams, coll: _Collision) -> None
     pp = params.plate
     r, half_t = pp.diameter_m / 2.0, pp.thickness_m / 2.0
     cx, cy, cz = pp.centre_m
-    body = spec.worldbody.add_body(name="plate", pos=[cx, cy, cz + half_t])
+    centre = [cx, cy, cz + half_t]  # the plate lies on the floor: bottom face at z = cz
     _geom(
-        body,
+        spec.worldbody,
         "plate",
         mujoco.mjtGeom.mjGEOM_CYLINDER,
         [r, half_t, 0.0],
         (1.0, 0.0, 0.0, 1.0),
         coll.world,
+        pos=centre,
     )
-    body.add_site(
+    spec.worldbody.add_site(
         name="plate_touch",
+        pos=centre,
         type=mujoco.mjtGeom.mjGEOM_CYLINDER,
         size=[1.01 * r, 1.01 * half_t, 0.0],
         rgba=[1.0, 0.0, 0.0, 0.1],

@@ -269,11 +269,12 @@ def _diverged(task: str, preset: str, t: float, why: str) -> SimulationDiverged:
     )
 
 
-_BAD_WARNINGS = (
-    mujoco.mjtWarning.mjWARN_BADQACC,
-    mujoco.mjtWarning.mjWARN_BADQPOS,
-    mujoco.mjtWarning.mjWARN_BADQVEL,
-)
+_WARNING_TEXT = {
+    mujoco.mjtWarning.mjWARN_BADQACC: "NaN/Inf or huge accelerations",
+    mujoco.mjtWarning.mjWARN_BADQPOS: "NaN/Inf or huge positions",
+    mujoco.mjtWarning.mjWARN_BADQVEL: "NaN/Inf or huge velocities",
+}
+_BAD_WARNINGS = tuple(_WARNING_TEXT)
 
 
 def rollout(
@@ -354,8 +355,10 @@ def _simulate(
                 step(model, data, k - prev - 1)
             step1(model, data)
             prev = k
-            if any(warn[w].number for w in _BAD_WARNINGS):
-                raise _diverged(task, name, k * dt, "MuJoCo reported an unstable state")
+            bad = [w for w in _BAD_WARNINGS if warn[w].number]
+            if bad:
+                what = ", ".join(_WARNING_TEXT[w] for w in bad)
+                raise _diverged(task, name, k * dt, f"MuJoCo found {what}")
         qpos[idx] = data.qpos
         act[idx] = data.act
         sensors[idx] = data.sensordata
