@@ -1,0 +1,172 @@
+"""The few-parameter policy: g, pairing, levels, hardware limits, encode/decode, hashes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from app.policy import (
+    CHAMBER_NAMES,
+    SIM_MAX_PRESSURE_PA,
+    Policy,
+    PolicyError,
+    PressureLimitError,
+    PressureLimits,
+    check_schedule,
+    schedule_hash,
+)
+
+
+@pytest.mark.parametrize(("levels", "n_actions"), [(2, 64), (5, 15_625), (7, 117_649), (10, 10**6)])
+def test_action_set_size(levels: int, n_actions: int) -> None:
+    policy = Policy(levels=levels)
+    assert policy.n_actions == n_actions
+    assert policy.dim == 10 and Policy(levels=levels, with_release=True).dim == 11
+
+
+@pytest.mark.parametrize("levels", [2, 10])
+def test_g_edges_theta_zero_and_one(levels: int) -> None:
+    policy = Policy(levels=levels)
+    m = policy.n_actions
+    actions, release = policy.actions_from_theta(np.zeros(10))
+    assert actions.tolist() == [0] * 10 and release is None
+    actions, _ = policy.actions_from_theta(np.ones(10))
+    assert actions.tolist() == [m - 1] * 10  # θ = 1 scales to M, clipped to M − 1
+    # just below a bin edge and on it
+    edge = np.full(10, 1.0 / m)
+    assert policy.actions_from_theta(edge)[0].tolist() == [1] * 10
+    assert policy.actions_from_theta(np.nextafter(edge, 0))[0].tolist() == [0] * 10
+
+
+def test_g_action_zero_is_all_minus_and_last_is_all_plus_in_sim_mode() -> None:
+    policy = Policy(levels=2)
+    low = policy.decode(np.zeros(10)).pressure_schedule_pa
+    high = policy.decode(np.ones(10)).pressure_schedule_pa
+    np.testing.assert_allclose(low[:, 0::2], 0.0)  # "+" chambers at p_min
+    np.testing.assert_allclose(low[:, 1::2], SIM_MAX_PRESSURE_PA)  # partners mirrored
+    np.testing.assert_allclose(high[:, 0::2], SIM_MAX_PRESSURE_PA)
+    np.testing.assert_allclose(high[:, 1::2], 0.0)
+
+
+def test_release_step_edges() -> None:
+    policy = Policy(levels=2, with_release=True)
+    assert policy.decode(np.zeros(11)).release_step == 1
+    assert policy.decode(np.ones(11)).release_step == 10
+    assert policy.decode(np.r_[np.zeros(10), 0.55]).release_step == 6
+
+
+@given(st.lists(st.floats(0.0, 1.0), min_size=10, max_size=10), st.sampled_from([2, 5, 7, 10]))
+@settings(max_examples=60, deadline=None)
+def test_pairing_sim_mode(theta: list[float], levels: int) -> None:
+    schedule = Policy(levels=levels).decode(np.asarray(theta)).pressure_schedule_pa
+    np.testing.assert_allclose(schedule[:, 0::2] + schedule[:, 1::2], SIM_MAX_PRESSURE_PA)
+    assert schedule.min() >= 0.0 and schedule.max() <= SIM_MAX_PRESSURE_PA
+    # every pressure is one of the P levels
+    grid = np.linspace(0.0, SIM_MAX_PRESSURE_PA, levels)
+    assert np.abs(schedule[..., None] - grid).min(axis=-1).max() < 1e-6
+
+
+def test_digit_order_first_paired_command_is_most_significant() -> None:
+    policy = Policy(levels=2)
+    levels = policy.levels_from_actions(np.array([1, 32]))
+    assert levels.tolist() == [[0, 0, 0, 0, 0, 1], [1, 0, 0, 0, 0, 0]]
+    schedule = policy.schedule_from_levels(levels)
+    assert schedule[1, 0] == SIM_MAX_PRESSURE_PA and schedule[0, 10] == SIM_MAX_PRESSURE_PA
+
+
+def test_hardware_mode_offsets_around_nominal() -> None:
+    nominal = np.linspace(80e3, 140e3, 12)
+    limits = PressureLimits(nominal_pa=tuple(nominal), max_step_pa=30e3, source_pa=205e3)
+    policy = Policy(levels=3, limits=limits)
+    table = policy.level_pressures_pa()
+    np.testing.assert_allclose(table[0], nominal[0] + np.array([-30e3, 0.0, 30e3]))
+    np.testing.assert_allclose(table[1], nominal[1] - np.array([-30e3, 0.0, 30e3]))  # +δ / −δ
+    schedule = policy.decode(np.full(10, 0.999)).pressure_schedule_pa
+    deviation = schedule - nominal
+    np.testing.assert_allclose(deviation[:, 0::2], 30e3)
+    np.testing.assert_allclose(deviation[:, 1::2], -30e3)
+    assert schedule.max() <= 205e3 and schedule.min() >= 0
+
+
+def test_hardware_limits_refuse_bad_nominals() -> None:
+    with pytest.raises(PolicyError, match=r"chamber j0\.x\+: nominal 190000 Pa"):
+        PressureLimits(nominal_pa=(190e3,) + (100e3,) * 11, max_step_pa=30e3, source_pa=205e3)
+    with pytest.raises(PolicyError, match=r"chamber j2\.y-"):
+        PressureLimits(nominal_pa=(100e3,) * 11 + (10e3,))
+    with pytest.raises(PolicyError, match="max_step_pa must be > 0"):
+        PressureLimits(max_step_pa=0.0)
+
+
+def test_hardware_check_names_chamber_step_and_value() -> None:
+    policy = Policy(levels=2, limits=PressureLimits())
+    schedule = np.full((10, 12), 100e3)
+    schedule[6, 9] = 131_000.0  # step 7, chamber j2.x−: 1 kPa past nominal + 30 kPa
+    with pytest.raises(PressureLimitError) as info:
+        policy.check(schedule)
+    err = info.value
+    assert (err.chamber, err.step, err.value_pa) == (9, 7, 131_000.0)
+    assert "step 7" in str(err) and CHAMBER_NAMES[9] in str(err) and "131000.0 Pa" in str(err)
+    with pytest.raises(PressureLimitError, match=r"step 1, chamber j0\.x\+: 300000\.0 Pa"):
+        check_schedule(np.full((10, 12), 3e5))
+    with pytest.raises(PolicyError, match=r"shape \(H, 12\)"):
+        check_schedule(np.zeros((10, 4)))
+
+
+def test_theta_outside_unit_box_is_refused_with_its_index() -> None:
+    policy = Policy(levels=7)
+    with pytest.raises(PolicyError, match=r"θ\[3\] = 1\.5 is outside \[0, 1\]"):
+        policy.decode(np.array([0, 0, 0, 1.5, 0, 0, 0, 0, 0, 0]))
+    with pytest.raises(PolicyError, match="θ must have 11 entries"):
+        Policy(levels=7, with_release=True).decode(np.zeros(10))
+    with pytest.raises(PolicyError, match="finite"):
+        policy.decode(np.full(10, np.nan))
+    with pytest.raises(PolicyError, match="levels"):
+        Policy(levels=1)
+
+
+@given(
+    st.lists(st.integers(0, 7**6 - 1), min_size=10, max_size=10),
+    st.integers(1, 10),
+)
+@settings(max_examples=60, deadline=None)
+def test_encode_decode_round_trip(actions: list[int], release: int) -> None:
+    policy = Policy(levels=7, with_release=True)
+    theta = policy.theta_from_actions(np.asarray(actions), release)
+    decoded = policy.decode(theta)
+    assert decoded.action_indices.tolist() == actions and decoded.release_step == release
+    theta_again = policy.encode(decoded.pressure_schedule_pa, decoded.release_step)
+    np.testing.assert_array_equal(theta_again, theta)
+    np.testing.assert_array_equal(
+        policy.decode(theta_again).pressure_schedule_pa, decoded.pressure_schedule_pa
+    )
+
+
+def test_encode_refuses_off_grid_schedules() -> None:
+    policy = Policy(levels=2)
+    schedule = policy.decode(np.zeros(10)).pressure_schedule_pa.copy()
+    schedule[2, 0] = 1000.0
+    with pytest.raises(PolicyError, match=r"step 3, pair j0\.x"):
+        policy.encode(schedule)
+
+
+def test_hardware_round_trip() -> None:
+    policy = Policy(levels=5, limits=PressureLimits(nominal_pa=120e3))
+    theta = np.random.default_rng(0).uniform(size=10)
+    decoded = policy.decode(theta)
+    again = policy.decode(policy.encode(decoded.pressure_schedule_pa))
+    np.testing.assert_array_equal(again.action_indices, decoded.action_indices)
+
+
+def test_schedule_hash_binds_exact_schedule_and_release() -> None:
+    schedule = Policy(levels=7).decode(np.linspace(0, 1, 10)).pressure_schedule_pa
+    h = schedule_hash(schedule, 4)
+    assert len(h) == 64 and int(h, 16) >= 0
+    assert schedule_hash(schedule.tolist(), 4) == h  # a JSON round trip keeps it
+    assert schedule_hash(schedule + 1e-5, 4) == h  # below 1 mPa: same schedule
+    changed = schedule.copy()
+    changed[9, 11] += 0.01  # 10 mPa
+    assert schedule_hash(changed, 4) != h
+    assert schedule_hash(schedule, 5) != h
+    assert schedule_hash(schedule, None) != h
