@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -201,10 +202,21 @@ def _new_server(
     return handle
 
 
+@pytest.fixture(scope="session")
+def _migrated_template(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One SQLite file migrated to head per session; tests get copies of it."""
+    data_dir = tmp_path_factory.mktemp("template")
+    make_migrated_db(data_dir)
+    return data_dir / "handful.db"
+
+
 @pytest.fixture
-def migrated_db(tmp_path: Path) -> str:
-    """URL of a fresh SQLite file built by running the migrations."""
-    return make_migrated_db(tmp_path / "data")
+def migrated_db(tmp_path: Path, _migrated_template: Path) -> str:
+    """URL of a fresh SQLite file built by running the migrations (a copy of one per session)."""
+    data_dir = tmp_path / "data"
+    data_dir.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(_migrated_template, data_dir / "handful.db")
+    return sqlite_url(data_dir / "handful.db")
 
 
 @pytest.fixture

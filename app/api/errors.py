@@ -1,17 +1,32 @@
-"""Domain errors → HTTP, in one place: ``{"detail": "<words>", "code": "<kind>"}``."""
+"""Errors → HTTP, in one place: domain errors as ``{"detail": "<words>", "code": "<kind>"}``;
+request validation errors in FastAPI's list form (``loc``, ``msg``), made JSON-safe."""
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from fastapi import FastAPI, Request
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
 from app.service.errors import IllegalTransition, ServiceError
 
 
+def _json_safe(value: Any) -> Any:
+    """Replace NaN/±inf (which JSON cannot carry) with their names, recursively."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return repr(value)
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_safe(v) for v in value]
+    return value
+
+
 def install(app: FastAPI) -> None:
-    """Register the ServiceError handler on ``app``."""
+    """Register the error handlers on ``app``."""
 
     @app.exception_handler(ServiceError)
     async def _service_error(_request: Request, exc: ServiceError) -> JSONResponse:
@@ -20,3 +35,8 @@ def install(app: FastAPI) -> None:
             body["current_status"] = exc.current
         headers = {"WWW-Authenticate": "Bearer"} if exc.status_code == 401 else None
         return JSONResponse(body, status_code=exc.status_code, headers=headers)
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation_error(_request: Request, exc: RequestValidationError) -> JSONResponse:
+        errors = _json_safe(jsonable_encoder(exc.errors()))
+        return JSONResponse({"detail": errors, "code": "validation_error"}, status_code=422)

@@ -8,13 +8,13 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.db.base import utcnow
-from app.db.models import Experiment, Trial
+from app.db.models import AuditLog, Experiment, Trial
 from app.policy import Policy, PolicyError, PressureLimits
 from app.service.audit import record
 from app.service.auth import Actor
 from app.service.errors import InvalidInput, NotFound
 from app.service.lifecycle import COMPLETED
-from app.service.schemas import ExperimentCreate, ExperimentPatch, ExperimentRead
+from app.service.schemas import AuditRead, ExperimentCreate, ExperimentPatch, ExperimentRead
 
 DEFAULT_UNIT = {"tip_speed": "m/s", "throw": "score", "hammer": "score"}
 
@@ -231,3 +231,15 @@ def experiment_version(session: Session, experiment_id: int) -> int:
     if v is None:
         raise NotFound(f"experiment {experiment_id} not found")
     return int(v)
+
+
+def audit_log(session: Session, experiment_id: int, *, limit: int = 500) -> list[AuditRead]:
+    """The experiment's audit rows, newest first."""
+    get_experiment(session, experiment_id)
+    rows = session.scalars(
+        select(AuditLog)
+        .where(AuditLog.experiment_id == experiment_id)
+        .order_by(AuditLog.id.desc())
+        .limit(limit)
+    )
+    return [AuditRead.model_validate(r) for r in rows]

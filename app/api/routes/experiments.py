@@ -10,10 +10,8 @@ from typing import Literal
 from fastapi import APIRouter, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import PlainTextResponse, StreamingResponse
-from sqlalchemy import select
 
 from app.api.deps import DbDep, Operator, Reader, ReadSession, WriteSession
-from app.db.models import AuditLog
 from app.service import data, experiments, trials
 from app.service.errors import NotFound
 from app.service.schemas import (
@@ -125,14 +123,7 @@ def audit(
     experiment_id: int, session: ReadSession, _: Reader, limit: int = Query(500, ge=1, le=10_000)
 ) -> list[AuditRead]:
     """The experiment's audit log, newest first."""
-    experiments.get_experiment(session, experiment_id)
-    rows = session.scalars(
-        select(AuditLog)
-        .where(AuditLog.experiment_id == experiment_id)
-        .order_by(AuditLog.id.desc())
-        .limit(limit)
-    )
-    return [AuditRead.model_validate(r) for r in rows]
+    return experiments.audit_log(session, experiment_id, limit=limit)
 
 
 @router.get("/{experiment_id}/version")
