@@ -20,27 +20,20 @@ class SafetyRefusal(Exception):
     """The worker refuses to run a trial; the message says which check failed."""
 
 
-def _field(obj: Mapping[str, Any], *names: str) -> Any:
-    for name in names:
-        if name in obj and obj[name] is not None:
-            return obj[name]
-    return None
-
-
 def limits_from_experiment(experiment: Mapping[str, Any]) -> PressureLimits:
     """The experiment's hardware limits (nominal ± max step within [0, source]); refuse if none."""
-    limits = _field(experiment, "limits", "hardware_limits")
-    src: Mapping[str, Any] = limits if isinstance(limits, Mapping) else experiment
-    nominal = _field(src, "nominal_pa", "nominal_pressure_pa")
-    max_step = _field(src, "max_step_pa")
-    source = _field(src, "source_pa", "source_pressure_pa")
-    if nominal is None or max_step is None or source is None:
+    limits = experiment.get("limits")
+    if not isinstance(limits, Mapping) or any(
+        limits.get(k) is None for k in ("nominal_pa", "max_step_pa", "source_pa")
+    ):
         raise SafetyRefusal("experiment carries no hardware limits (nominal, max step, source)")
     try:
         return PressureLimits(
-            nominal_pa=tuple(np.broadcast_to(np.asarray(nominal, dtype=float), (N_CHAMBERS,))),
-            max_step_pa=float(max_step),
-            source_pa=float(source),
+            nominal_pa=tuple(
+                np.broadcast_to(np.asarray(limits["nominal_pa"], dtype=float), (N_CHAMBERS,))
+            ),
+            max_step_pa=float(limits["max_step_pa"]),
+            source_pa=float(limits["source_pa"]),
         )
     except (PolicyError, ValueError, TypeError) as exc:
         raise SafetyRefusal(f"experiment's hardware limits are invalid: {exc}") from None
@@ -48,28 +41,32 @@ def limits_from_experiment(experiment: Mapping[str, Any]) -> PressureLimits:
 
 def policy_from_experiment(experiment: Mapping[str, Any]) -> Policy:
     """The experiment's policy (P, H, release step) with its hardware limits."""
-    pol = _field(experiment, "policy")
-    src: Mapping[str, Any] = pol if isinstance(pol, Mapping) else experiment
+    limits = limits_from_experiment(experiment)
     try:
         return Policy(
-            levels=int(_field(src, "levels", "P")),
-            horizon=int(_field(src, "horizon", "H")),
-            with_release=bool(_field(src, "with_release", "release") or False),
-            limits=limits_from_experiment(experiment),
+            levels=int(experiment["levels"]),
+            horizon=int(experiment["horizon"]),
+            with_release=bool(experiment.get("with_release") or False),
+            limits=limits,
         )
-    except (PolicyError, TypeError, ValueError) as exc:
+    except (KeyError, PolicyError, TypeError, ValueError) as exc:
         raise SafetyRefusal(f"experiment's policy settings are invalid: {exc}") from None
 
 
 def gate_hardware_trial(
-    trial: Mapping[str, Any], experiment: Mapping[str, Any], *, trial_id: int | None = None
+    trial: Mapping[str, Any],
+    experiment: Mapping[str, Any],
+    *,
+    trial_id: int | None = None,
+    robot_max_pa: float | None = None,
 ) -> DriverCommand:
     """Check a claimed hardware trial end to end; return the one command the driver may run.
 
     Checks, in order: the experiment targets hardware and owns the trial; the schedule is
     (H, 12), finite and inside nominal ± max step within [0, source]; the release step fits the
     policy; θ decodes to exactly this schedule; a confirmation (who, when, hash) is on record and
-    its hash equals `schedule_hash` of the schedule about to be sent.
+    its hash equals `schedule_hash` of the schedule about to be sent. `robot_max_pa` (the
+    driver's own ceiling, independent of anything the server says) caps every chamber too.
 
     Raises:
         SafetyRefusal: naming the first check that failed.
@@ -94,6 +91,11 @@ def gate_hardware_trial(
         schedule = policy.check(np.asarray(raw, dtype=np.float64))
     except (PolicyError, TypeError, ValueError) as exc:
         raise SafetyRefusal(f"schedule refused by the hardware limits: {exc}") from None
+    if robot_max_pa is not None and float(schedule.max()) > robot_max_pa:
+        raise SafetyRefusal(
+            f"schedule peaks at {float(schedule.max()):.1f} Pa, above the robot's own ceiling "
+            f"of {robot_max_pa:.1f} Pa"
+        )
 
     release = trial.get("release_step")
     if policy.with_release:
@@ -113,7 +115,8 @@ def gate_hardware_trial(
     ):
         raise SafetyRefusal("trial's schedule is not what its θ decodes to")
 
-    confirmed_hash = trial.get("schedule_hash")
+    # The server's own `schedule_hash` field is ignored: the worker hashes what it will send.
+    confirmed_hash = trial.get("confirmed_hash")
     if not confirmed_hash or not trial.get("confirmed_by") or not trial.get("confirmed_at"):
         raise SafetyRefusal("no operator confirmation on record for this trial")
     expected = schedule_hash(schedule, release)

@@ -44,7 +44,12 @@ def execute_claim(driver: Driver, claim: dict[str, Any]) -> HardwareOutcome:
     trial, experiment = claim["trial"], claim["experiment"]
     base = {"lease_id": claim["lease_id"], "trajectory": None}
     try:
-        command = gate_hardware_trial(trial, experiment, trial_id=trial.get("id"))
+        command = gate_hardware_trial(
+            trial,
+            experiment,
+            trial_id=trial.get("id"),
+            robot_max_pa=getattr(driver, "max_pressure_pa", None),
+        )
     except SafetyRefusal as exc:
         log.error("refused trial %s: %s", trial.get("id"), exc)
         return HardwareOutcome(
@@ -59,7 +64,21 @@ def execute_claim(driver: Driver, claim: dict[str, Any]) -> HardwareOutcome:
             None,
         )
     log.info("running trial %s on driver %s", command.trial_id, getattr(driver, "name", "?"))
-    execution = driver.execute(command)
+    try:
+        execution = driver.execute(command)
+    except Exception as exc:
+        log.exception("driver failed on trial %s", command.trial_id)
+        return HardwareOutcome(
+            {
+                **base,
+                "executed_pressure_schedule_pa": None,
+                "executed_release_step": None,
+                "objective": None,
+                "fault": f"driver error, robot state unknown: {exc.__class__.__name__}: {exc}",
+            },
+            command,
+            None,
+        )
     objective: float | None = None
     fault = execution.fault
     if fault is None:

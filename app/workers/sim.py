@@ -10,8 +10,10 @@ flight and exits.
 from __future__ import annotations
 
 import base64
+import dataclasses
 import io
 import logging
+import multiprocessing as mp
 import time
 from collections.abc import Mapping
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -67,15 +69,25 @@ def run_sim_trial(
         return SimOutcome(None, b"", f"simulation diverged: {exc}", time.perf_counter() - start)
     except ValueError as exc:
         return SimOutcome(None, b"", f"simulator refused the schedule: {exc}", 0.0)
-    buf = io.BytesIO()
-    res.trajectory.to_npz(buf)
     return SimOutcome(
         objective=float(res.objective),
-        trajectory_npz=buf.getvalue(),
+        trajectory_npz=trajectory_npz_bytes(res.trajectory),
         fault=None,
         sim_wall_s=time.perf_counter() - start,
         summary=res.to_summary(),
     )
+
+
+def trajectory_npz_bytes(trajectory: Any) -> bytes:
+    """The same compressed npz `Trajectory.to_npz` writes, as bytes (no temp file)."""
+    arrays = {
+        f.name: getattr(trajectory, f.name)
+        for f in dataclasses.fields(trajectory)
+        if getattr(trajectory, f.name) is not None
+    }
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    return buf.getvalue()
 
 
 def _warm_up() -> None:
@@ -177,7 +189,11 @@ class SimWorker:
         ran = 0
         idle_since = time.monotonic()
         delay = 0.05
-        with ProcessPoolExecutor(max_workers=self.max_parallel, initializer=_warm_up) as pool:
+        with ProcessPoolExecutor(
+            max_workers=self.max_parallel,
+            mp_context=mp.get_context("spawn"),  # no fork after the heartbeat thread starts
+            initializer=_warm_up,
+        ) as pool:
             try:
                 while True:
                     room = self.max_parallel - len(in_flight)

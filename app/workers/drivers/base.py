@@ -129,7 +129,11 @@ SampleCallback = Callable[[TrackingSample], None]
 
 @runtime_checkable
 class Driver(Protocol):
-    """What a robot driver provides. Drivers are built by `load_driver(name, **options)`."""
+    """What a robot driver provides. Drivers are built by `load_driver(name, **options)`.
+
+    A driver may also set `max_pressure_pa` (float): the robot's own ceiling, checked by the
+    worker's gate whatever the experiment's limits say.
+    """
 
     name: str
 

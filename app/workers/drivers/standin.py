@@ -138,6 +138,7 @@ class StandinDriver:
     """
 
     name = "standin"
+    max_pressure_pa = 205_000.0  # the lab's supply: nothing above it can reach the chambers
 
     def __init__(
         self,
@@ -151,7 +152,7 @@ class StandinDriver:
         dropout: str | float = 0.003,
         bias_step_pa: str | float = 250.0,
         stiffness_step: str | float = 0.004,
-        fault_speed_m_s: str | float = 3.5,
+        fault_speed_m_s: str | float = 2.0,
         fault_probability: str | float = 0.5,
         tracker_loss_probability: str | float = 0.01,
     ) -> None:
