@@ -13,7 +13,10 @@ Fixtures (reuse them; they are documented for the workers and dashboard tests):
   ``kill9()``, ``stop()``, ``start()`` (same data folder and port) and make clients.
   All servers are killed at the end of the test.
 - ``live_server``: one server shared by the whole session (dashboard off, 60 s leases).
-  Tests sharing it must create their own experiments and never assume global counts.
+  Tests sharing it must create their own experiments and never assume global counts; they
+  must not claim trials (workers would take other tests' queued trials): use
+- ``module_server``: one server per test module, configured by the module's ``SERVER_ENV``
+  (and ``SERVER_DASHBOARD``) globals; for worker/lease tests.
 - ``api`` / ``viewer_api`` / ``worker_api`` / ``anon_api``: ``HandfulClient`` on
   ``live_server`` with the operator / viewer / worker token / no token.
 """
@@ -241,6 +244,22 @@ def server_factory(tmp_path: Path) -> Iterator[Callable[..., ServerHandle]]:
 def live_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerHandle]:
     """One server for the session (dashboard off)."""
     handle = _new_server(tmp_path_factory.mktemp("live"), env=None, dashboard=False, use_cli=False)
+    yield handle
+    handle.close()
+
+
+@pytest.fixture(scope="module")
+def module_server(
+    tmp_path_factory: pytest.TempPathFactory, request: pytest.FixtureRequest
+) -> Iterator[ServerHandle]:
+    """A server for one test module; the module's ``SERVER_ENV`` dict (if any) sets its env,
+    e.g. ``SERVER_ENV = {"HANDFUL_LEASE_SECONDS": "2"}``; ``SERVER_DASHBOARD = True``."""
+    handle = _new_server(
+        tmp_path_factory.mktemp("module"),
+        env=getattr(request.module, "SERVER_ENV", None),
+        dashboard=getattr(request.module, "SERVER_DASHBOARD", False),
+        use_cli=False,
+    )
     yield handle
     handle.close()
 

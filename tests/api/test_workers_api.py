@@ -1,0 +1,274 @@
+"""Workers over HTTP: claim (atomic, behind the safety gate), heartbeat, result (idempotent
+per lease), faults, executed schedules, aborts. One server for this module."""
+
+from __future__ import annotations
+
+import base64
+import io
+import sqlite3
+import threading
+
+import numpy as np
+import pytest
+
+from app.client import HandfulAPIError
+from app.policy import Policy, PressureLimits, schedule_hash
+
+SERVER_ENV = {"HANDFUL_LEASE_SECONDS": "60", "HANDFUL_MAX_ATTEMPTS": "2"}
+LIMITS = {"nominal_pa": 100_000.0, "max_step_pa": 30_000.0, "source_pa": 205_000.0}
+
+
+@pytest.fixture
+def op(module_server):
+    return module_server.client("operator")
+
+
+@pytest.fixture
+def worker(module_server):
+    return module_server.client("worker")
+
+
+@pytest.fixture(autouse=True)
+def _nothing_left_queued(module_server):
+    """Each test starts and ends with no claimable trial (claims take the oldest first)."""
+    yield
+    op = module_server.client("operator")
+    for exp in op.list_experiments():
+        if exp["status"] == "active":
+            op.patch_experiment(exp["id"], status="archived")
+
+
+def new_exp(op, **fields):
+    spec = {
+        "name": "w",
+        "task": "tip_speed",
+        "levels": 3,
+        "method": "random",
+        "sim_preset": "fast",
+        **fields,
+    }
+    if spec.get("target") == "hardware":
+        spec.setdefault("limits", LIMITS)
+    return op.create_experiment(**spec)
+
+
+def npz_bytes(**arrays) -> bytes:
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
+
+
+def error_of(call, *args, **kwargs) -> HandfulAPIError:
+    with pytest.raises(HandfulAPIError) as info:
+        call(*args, **kwargs)
+    return info.value
+
+
+def test_sim_claim_heartbeat_result(op, worker):
+    exp = new_exp(op)
+    [trial] = op.suggest(exp["id"])
+    [c] = worker.claim("w-1", "sim", max_trials=4)
+    assert c["trial"]["id"] == trial["id"] and c["trial"]["status"] == "running"
+    assert c["experiment"]["id"] == exp["id"] and c["trial"]["attempts"] == 1
+    assert worker.claim("w-2", "sim") == []  # nothing left: no trial handed out twice
+    hb = worker.heartbeat(c["lease_id"])
+    assert hb["status"] == "active" and hb["lease_expires_at"] >= c["lease_expires_at"]
+    traj = npz_bytes(time_s=np.linspace(0, 5, 11), tip_speed_m_s=np.full(11, 2.5))
+    out = worker.report_result(
+        trial["id"],
+        c["lease_id"],
+        executed_pressure_schedule_pa=trial["pressure_schedule_pa"],
+        objective=2.5,
+        trajectory_npz=traj,
+        summary={"wall_s": 0.2},
+    )
+    t = out["trial"]
+    assert t["status"] == "completed" and t["objective"] == 2.5 and t["has_trajectory"]
+    assert t["executed_theta"] is not None
+    assert (
+        Policy(levels=3).decode(np.asarray(t["executed_theta"])).pressure_schedule_pa.tolist()
+        == trial["pressure_schedule_pa"]
+    )
+    detail = op.get_trial(trial["id"])
+    assert [(m["source"], m["created_by"]) for m in detail["measurements"]] == [
+        ("worker", "worker")
+    ]
+    assert op.trajectory(trial["id"])["tip_speed_m_s"] == [2.5] * 11
+    # idempotent per lease: the same report again gives the same reply and stores nothing
+    again = worker.report_result(
+        trial["id"],
+        c["lease_id"],
+        executed_pressure_schedule_pa=trial["pressure_schedule_pa"],
+        objective=2.5,
+        trajectory_npz=traj,
+        summary={"wall_s": 0.2},
+    )
+    assert again == out
+    assert op.get_trial(trial["id"])["n_measurements"] == 1
+    err = error_of(worker.report_result, trial["id"], c["lease_id"], objective=3.0)
+    assert err.status == 409 and "different result" in err.detail
+    err = error_of(worker.heartbeat, c["lease_id"])
+    assert err.status == 409 and err.code == "lease_lost"
+
+
+def test_bad_results_are_refused_and_store_nothing(op, worker, module_server):
+    exp = new_exp(op)
+    a, b = op.suggest(exp["id"], n=2)
+    claims = worker.claim("w-1", "sim", max_trials=2)
+    lease = {c["trial"]["id"]: c["lease_id"] for c in claims}
+    cases = [
+        (dict(objective=float("inf")), 422),
+        (dict(objective=-1.0), 422),
+        (dict(executed_pressure_schedule_pa=[[1.0] * 12] * 3), 422),
+        (dict(objective=1.0, trajectory_npz=b"not an npz"), 422),
+    ]
+    for kwargs, status in cases:
+        with pytest.raises((HandfulAPIError, ValueError)) as info:
+            worker.report_result(a["id"], lease[a["id"]], **kwargs)
+        if isinstance(info.value, HandfulAPIError):
+            assert info.value.status == status, kwargs
+    err = error_of(worker.report_result, a["id"], lease[b["id"]], objective=1.0)
+    assert err.status == 422 and f"is for trial {b['id']}" in err.detail
+    err = error_of(worker.report_result, a["id"], "no-such-lease", objective=1.0)
+    assert err.status == 404
+    t = op.get_trial(a["id"])
+    assert t["status"] == "running" and t["n_measurements"] == 0 and not t["has_trajectory"]
+    assert t["executed_theta"] is None
+    for tid in (a["id"], b["id"]):
+        worker.report_result(tid, lease[tid], fault="test over")
+
+
+def test_executed_schedule_is_what_the_gp_sees(op, worker):
+    exp = new_exp(op)
+    [trial] = op.suggest(exp["id"])
+    [c] = worker.claim("w-1", "sim")
+    policy = Policy(levels=3)
+    planned = policy.decode(np.asarray(trial["theta"]))
+    levels = planned.level_indices.copy()
+    levels[0, 0] = (levels[0, 0] + 1) % 3
+    executed = policy.schedule_from_levels(levels)
+    t = worker.report_result(
+        trial["id"], c["lease_id"], executed_pressure_schedule_pa=executed, objective=1.7
+    )["trial"]
+    assert t["executed_pressure_schedule_pa"] == executed.tolist()
+    np.testing.assert_array_equal(
+        policy.decode(np.asarray(t["executed_theta"])).level_indices, levels
+    )
+    assert t["executed_theta"] != t["theta"]
+    assert op.model(exp["id"])["incumbent_theta"] == t["executed_theta"]
+
+
+def test_sim_fault_fails_hardware_fault_needs_review(op, worker):
+    sim = new_exp(op)
+    [st] = op.suggest(sim["id"])
+    [c] = worker.claim("w-1", "sim")
+    t = worker.report_result(st["id"], c["lease_id"], fault="simulation diverged")["trial"]
+    assert t["status"] == "failed" and "simulation diverged" in t["status_reason"]
+    hw = new_exp(op, target="hardware")
+    [ht] = op.suggest(hw["id"])
+    op.confirm_trial(ht["id"], ht["schedule_hash"])
+    [c] = worker.claim("hw-1", "hardware")
+    t = worker.report_result(ht["id"], c["lease_id"], fault="I2C bus fault on joint 2")["trial"]
+    assert t["status"] == "needs_review" and "I2C" in t["status_reason"]
+    t = op.resolve_trial(ht["id"], "requeue", "sensor reseated")
+    assert t["status"] == "awaiting_confirmation" and t["confirmed_hash"] is None
+    assert worker.claim("hw-1", "hardware") == []  # needs a fresh confirmation
+    op.confirm_trial(ht["id"], ht["schedule_hash"])
+    [c] = worker.claim("hw-1", "hardware")
+    assert c["trial"]["attempts"] == 2
+    worker.report_result(ht["id"], c["lease_id"], objective=3.2)
+    assert op.get_trial(ht["id"])["status"] == "completed"
+
+
+def test_hardware_gate_confirmation_and_changed_schedule(op, worker, module_server):
+    hw = new_exp(op, target="hardware")
+    a, b, c3 = op.suggest(hw["id"], n=3)
+    assert worker.claim("hw", "hardware", max_trials=3) == []  # none confirmed
+    for t in (a, b, c3):
+        op.confirm_trial(t["id"], t["schedule_hash"])
+    # after the confirmation, b's schedule changes in the database (same limits) and c3's is
+    # forged beyond the limits with a forged matching hash: neither may reach a worker
+    policy = Policy(levels=3, limits=PressureLimits(nominal_pa=100_000.0))
+    other = policy.decode(np.full(10, 0.999)).pressure_schedule_pa.tolist()
+    forged = (np.asarray(c3["pressure_schedule_pa"]) + 50_000.0).tolist()
+    con = sqlite3.connect(module_server.db_url.removeprefix("sqlite:///"))
+    with con:
+        con.execute(
+            "UPDATE trials SET pressure_schedule_pa = ? WHERE id = ?",
+            (str(other).replace("'", '"'), b["id"]),
+        )
+        con.execute(
+            "UPDATE trials SET pressure_schedule_pa = ?, confirmed_hash = ? WHERE id = ?",
+            (str(forged), schedule_hash(forged, None), c3["id"]),
+        )
+    con.close()
+    claims = worker.claim("hw", "hardware", max_trials=3)
+    assert [c["trial"]["id"] for c in claims] == [a["id"]]
+    tb, tc = op.get_trial(b["id"]), op.get_trial(c3["id"])
+    assert tb["status"] == "needs_review" and "changed after confirmation" in tb["status_reason"]
+    assert tc["status"] == "needs_review" and "beyond the pressure limits" in tc["status_reason"]
+    # confirming a stale hash is refused too
+    err = error_of(op.confirm_trial, b["id"], b["schedule_hash"])
+    assert err.status == 409
+    worker.report_result(a["id"], claims[0]["lease_id"], fault="stop")
+
+
+def test_executed_schedule_beyond_limits_needs_review(op, worker):
+    hw = new_exp(op, target="hardware")
+    [t] = op.suggest(hw["id"])
+    op.confirm_trial(t["id"], t["schedule_hash"])
+    [c] = worker.claim("hw", "hardware")
+    beyond = np.asarray(t["pressure_schedule_pa"])
+    beyond[3, 5] = 150_000.0
+    out = worker.report_result(
+        t["id"], c["lease_id"], executed_pressure_schedule_pa=beyond, objective=2.0
+    )["trial"]
+    assert out["status"] == "needs_review" and "beyond the limits" in out["status_reason"]
+    assert out["executed_pressure_schedule_pa"][3][5] == 150_000.0
+
+
+def test_abort_revokes_the_lease_and_refuses_the_late_result(op, worker):
+    exp = new_exp(op)
+    [t] = op.suggest(exp["id"])
+    [c] = worker.claim("w", "sim")
+    op.abandon_trial(t["id"], "operator stopped it")
+    err = error_of(worker.report_result, t["id"], c["lease_id"], objective=1.0)
+    assert err.status == 409 and err.code == "lease_lost"
+    assert "revoked" in err.detail and "late result" in err.detail
+    actions = [a["action"] for a in op.get_trial(t["id"])["audit"]]
+    assert "trial.abort" in actions and "lease.revoked" in actions
+
+
+def test_concurrent_claims_never_hand_out_a_trial_twice(op, module_server):
+    exp = new_exp(op)
+    trials = op.suggest(exp["id"], n=8)
+    got: list[int] = []
+    lock = threading.Lock()
+
+    def run(i: int) -> None:
+        c = module_server.client("worker")
+        while True:
+            claims = c.claim(f"w{i}", "sim", max_trials=2)
+            if not claims:
+                return
+            with lock:
+                got.extend(x["trial"]["id"] for x in claims)
+
+    threads = [threading.Thread(target=run, args=(i,)) for i in range(4)]
+    for th in threads:
+        th.start()
+    for th in threads:
+        th.join()
+    assert sorted(got) == sorted(t["id"] for t in trials)
+
+
+def test_base64_trajectory_roundtrip(op, worker):
+    exp = new_exp(op)
+    [t] = op.suggest(exp["id"])
+    [c] = worker.claim("w", "sim")
+    arrays = {"time_s": np.arange(3.0), "qpos": np.ones((3, 4))}
+    worker.report_result(t["id"], c["lease_id"], objective=1.0, trajectory_npz=npz_bytes(**arrays))
+    raw = worker_npz = op.trajectory_npz(t["id"])
+    with np.load(io.BytesIO(raw)) as z:
+        np.testing.assert_array_equal(z["qpos"], arrays["qpos"])
+    assert base64.b64encode(worker_npz)
