@@ -40,7 +40,8 @@ def _setup(log_level: str) -> None:
 def _client(server: str, token: str):
     from app.client import HandfulClient
 
-    return HandfulClient(server, token=token)
+    # Retries live in the worker (app.workers.common.retry), with backoff across restarts.
+    return HandfulClient(server, token=token, timeout=30.0)
 
 
 def _parse_options(pairs: list[str]) -> dict[str, str]:

@@ -9,7 +9,6 @@ reaches the driver. The worker reports the schedule the driver says it actually 
 
 from __future__ import annotations
 
-import base64
 import logging
 import time
 from dataclasses import dataclass
@@ -28,7 +27,7 @@ log = logging.getLogger("handful.worker.hardware")
 
 @dataclass
 class HardwareOutcome:
-    """One claimed trial's fate: the result payload (without the lease) and what ran."""
+    """One claimed trial's fate: the result (`client.report_result` keywords) and what ran."""
 
     payload: dict[str, Any]
     command: DriverCommand | None
@@ -42,7 +41,7 @@ def execute_claim(driver: Driver, claim: dict[str, Any]) -> HardwareOutcome:
     "refused by the hardware worker" and no executed schedule.
     """
     trial, experiment = claim["trial"], claim["experiment"]
-    base = {"lease_id": claim["lease_id"], "trajectory": None}
+    base: dict[str, Any] = {"trajectory_npz": None, "summary": None}
     try:
         command = gate_hardware_trial(
             trial,
@@ -96,10 +95,11 @@ def execute_claim(driver: Driver, claim: dict[str, Any]) -> HardwareOutcome:
             "executed_pressure_schedule_pa": executed.tolist(),
             "executed_release_step": execution.executed_release_step,
             "objective": objective,
-            "trajectory": base64.b64encode(execution.tracking.to_npz_bytes()).decode("ascii")
+            "trajectory_npz": execution.tracking.to_npz_bytes()
             if len(execution.tracking.time_s)
             else None,
             "fault": fault,
+            "summary": {"driver": getattr(driver, "name", "?"), **execution.info},
         },
         command,
         execution,
@@ -157,7 +157,7 @@ class HardwareWorker:
         )
         try:
             retry(
-                lambda: self.client.post_result(trial_id, outcome.payload),
+                lambda: self.client.report_result(trial_id, claim["lease_id"], **outcome.payload),
                 what=f"result {trial_id}",
             )
         except PermanentError as exc:

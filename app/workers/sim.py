@@ -9,7 +9,6 @@ flight and exits.
 
 from __future__ import annotations
 
-import base64
 import dataclasses
 import io
 import logging
@@ -160,18 +159,22 @@ class SimWorker:
 
     def _post(self, job: _InFlight, outcome: SimOutcome) -> None:
         trial_id = job.trial["id"]
+        summary = dict(outcome.summary)
+        summary.pop("tip_speed_100hz", None)  # the trajectory carries it
+        summary["worker_id"] = self.worker_id
         payload = {
-            "lease_id": job.lease_id,
             "executed_pressure_schedule_pa": job.trial["pressure_schedule_pa"],
             "executed_release_step": job.trial.get("release_step"),
             "objective": outcome.objective,
-            "trajectory": base64.b64encode(outcome.trajectory_npz).decode("ascii")
-            if outcome.trajectory_npz
-            else None,
+            "trajectory_npz": outcome.trajectory_npz or None,
             "fault": outcome.fault,
+            "summary": summary,
         }
         try:
-            retry(lambda: self.client.post_result(trial_id, payload), what=f"result {trial_id}")
+            retry(
+                lambda: self.client.report_result(trial_id, job.lease_id, **payload),
+                what=f"result {trial_id}",
+            )
         except PermanentError as exc:
             self.refused += 1
             log.error("result for trial %s refused: %s", trial_id, exc)
