@@ -283,8 +283,8 @@ class VizServer:
                     tint=OVERLAY_TINT,
                     include_static=False,
                 )
-        client.camera.position = (1.3, 2.0, 1.2)
-        client.camera.look_at = (-0.1, 0.1, 0.55)
+        client.camera.position = (0.9, 1.45, 1.05)
+        client.camera.look_at = (-0.15, 0.15, 0.55)
 
         legend = f"**{view.primary.replay.label}**"
         if view.overlay is not None:

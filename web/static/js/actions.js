@@ -53,14 +53,16 @@ function measurementBox(trial, defaultUnit, done) {
     refresh();
   }
 
-  function read() {
+  function read(strict = false) {
     const repeats = [];
     const problems = [];
     [...rows.children].forEach((row, i) => {
-      const parsed = parseValue(row.querySelector(".m-value").value);
+      const input = row.querySelector(".m-value");
+      const parsed = parseValue(input.value);
       const unit = row.querySelector(".m-unit").value;
       const note = row.querySelector(".m-note").value;
-      row.querySelector(".m-value").classList.toggle("invalid", !!parsed.error);
+      // While typing, only a non-empty wrong value is marked; on save, empty ones too.
+      input.classList.toggle("invalid", !!parsed.error && (strict || input.value.trim() !== ""));
       if (parsed.error) problems.push(`repeat ${i + 1}: ${parsed.error}`);
       else repeats.push({ value: parsed.value, unit, note });
     });
@@ -83,7 +85,7 @@ function measurementBox(trial, defaultUnit, done) {
   const form = el("form", { id: "measure-form", novalidate: true, onsubmit: async (ev) => {
     ev.preventDefault();
     error.textContent = "";
-    const { repeats, problems } = read();
+    const { repeats, problems } = read(true);
     if (problems.length) { error.textContent = `Not saved: ${problems.join("; ")}.`; return; }
     save.disabled = true;
     try {
@@ -147,7 +149,7 @@ export function renderTrialActions(container, trial, ctx) {
   const hardware = experiment.target === "hardware";
   const status = trial.status;
   const viewBox = el("div", { class: "row gap" });
-  if (!TERMINAL.has(status)) {
+  if (!TERMINAL.has(status) && canWrite()) {
     viewBox.append(el("button", { id: "preview-button", class: "primary", onclick: () => openPreview(trial, ctx.incumbentId) }, "Preview (3D)"));
   } else {
     viewBox.append(el("button", { id: "replay-trial-button", onclick: () => openReplay(trial, ctx.incumbentId) }, "3D replay"));

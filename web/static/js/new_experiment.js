@@ -109,7 +109,8 @@ form.addEventListener("submit", async (ev) => {
 
 requireLogin().then((me) => {
   if (me.role !== "operator") {
-    form.replaceChildren(el("p", { class: "error" }, `You are logged in as a ${me.role}: only operators can create experiments.`));
+    form.replaceWith(el("p", { class: "error" }, `You are logged in as a ${me.role}: only operators can create experiments.`));
+    return;
   }
   updateDependent();
 });

@@ -66,11 +66,16 @@ function renderAudit(t) {
 
 async function renderTrajectory(t) {
   const note = $("#trajectory-note");
-  if (!t.has_trajectory) { note.textContent = "No recorded trajectory for this trial (yet). The 3D replay simulates its schedule."; return; }
+  if (!t.has_trajectory) {
+    note.textContent = "No recorded trajectory for this trial (yet). The 3D replay simulates its schedule.";
+    $("#trajectory-plots").hidden = true;
+    return;
+  }
   try {
     const tr = await api("GET", `/api/trials/${t.id}/trajectory?format=json`);
     const time = tr.time_s;
     note.textContent = `${time.length} samples over ${fmt(time[time.length - 1], 2)} s.`;
+    $("#trajectory-plots").hidden = false;
     if (tr.tip_speed_m_s) line($("#speed-plot"), time, tr.tip_speed_m_s, { title: "tip speed", ytitle: "m/s" });
     if (tr.tip_pos_m) line($("#height-plot"), time, tr.tip_pos_m.map((p) => p[2]), { title: "tip height", ytitle: "m" });
     if (tr.plate_force_n) line($("#force-plot"), time, tr.plate_force_n, { title: "plate force", ytitle: "N" });

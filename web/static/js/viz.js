@@ -31,7 +31,7 @@ async function embed(body, legend, gen) {
   const view = await api("POST", "/viz/views", { body });
   if (gen !== generation) return;
   progress(null);
-  $("#viz-legend").textContent = [legend, view.overlay_label ? `Overlay (blue, see-through): ${view.overlay_label}.` : ""].filter(Boolean).join(" ");
+  $("#viz-legend").textContent = [legend || `Showing ${view.label}.`, view.overlay_label ? `Overlay (blue, see-through): ${view.overlay_label}.` : ""].filter(Boolean).join(" ");
   $("#viz-frame-holder").replaceChildren(el("iframe", {
     id: "viz-frame", src: viserUrl(view.port, view.key), title: `3D view: ${view.label}`, allow: "fullscreen",
   }));
@@ -48,6 +48,7 @@ export async function openPreview(trial, incumbentId) {
   $("#viz-legend").textContent = "";
   $("#viz-frame-holder").replaceChildren();
   progress(0.02, "asking the server for a preview…");
+  card().scrollIntoView({ block: "start" });
   try {
     const { job_id: jobId } = await api("POST", `/api/trials/${trial.id}/preview`);
     const started = Date.now();
@@ -93,5 +94,5 @@ export async function openReplay(trial, overlayId) {
     progress(null);
     $("#viz-error").textContent = `Replay not shown: ${err.message}`;
   }
-  card().scrollIntoView({ behavior: "smooth", block: "start" });
+  card().scrollIntoView({ block: "start" });
 }
