@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 import sys
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -55,12 +55,29 @@ def _parse_options(pairs: list[str]) -> dict[str, str]:
     return options
 
 
+def _run(worker: Any, max_trials: int | None, idle_exit: float | None) -> int:
+    """Run a worker; a refusal from the server (bad token, wrong role) is one line, exit 1."""
+    from app.workers.common import PermanentError
+
+    try:
+        return int(worker.run(max_trials=max_trials, idle_exit_s=idle_exit))
+    except PermanentError as exc:
+        typer.echo(f"error: the server refused the worker: {exc}", err=True)
+        raise typer.Exit(1) from None
+
+
 @worker_app.command("sim")
 def sim(
     server: ServerOpt,
     token: TokenOpt,
     max_parallel: Annotated[
-        int | None, typer.Option("--max-parallel", min=1, help="rollouts at once (default: cores)")
+        int | None,
+        typer.Option(
+            "--max-parallel",
+            min=1,
+            envvar="HANDFUL_MAX_PARALLEL",
+            help="rollouts at once (default: all cores)",
+        ),
     ] = None,
     worker_id: IdOpt = None,
     max_trials: MaxTrialsOpt = None,
@@ -89,7 +106,7 @@ def sim(
     logging.getLogger("handful.worker").info(
         "sim worker %s on %s, %d process(es)", worker.worker_id, server, worker.max_parallel
     )
-    ran = worker.run(max_trials=max_trials, idle_exit_s=idle_exit)
+    ran = _run(worker, max_trials, idle_exit)
     typer.echo(f"sim worker {worker.worker_id}: {ran} trial(s) run, exiting")
 
 
@@ -132,7 +149,7 @@ def hardware(
     logging.getLogger("handful.worker").info(
         "hardware worker %s on %s, driver %s", worker.worker_id, server, driver
     )
-    ran = worker.run(max_trials=max_trials, idle_exit_s=idle_exit)
+    ran = _run(worker, max_trials, idle_exit)
     typer.echo(f"hardware worker {worker.worker_id}: {ran} trial(s) run, exiting")
 
 

@@ -50,6 +50,10 @@ def is_transient(exc: BaseException) -> bool:
     return code in TRANSIENT_STATUS
 
 
+class StopRequested(RuntimeError):
+    """A retry loop gave up because the worker is stopping."""
+
+
 class StopFlag:
     """Set by SIGTERM/SIGINT: finish what is in flight, claim nothing new, exit 0."""
 
@@ -98,8 +102,9 @@ def retry(
 ) -> T:
     """Run `call`, retrying transient HTTP failures with capped exponential backoff.
 
-    Gives up after `deadline_s` (raises the last error) or, when `stop` is set and the call is
-    not worth finishing, early. Non-transient errors are raised at once as PermanentError.
+    Gives up after `deadline_s` (raises the last error), or with StopRequested once `stop` is
+    set (pass it only for calls not worth finishing, like a claim). Non-transient errors are
+    raised at once as PermanentError.
     """
     start = time.monotonic()
     delay = first_delay_s
@@ -114,8 +119,12 @@ def retry(
             if time.monotonic() - start > deadline_s:
                 raise
             if attempt == 1 or attempt % 10 == 0:
-                log.warning("%s failed (%s); retrying", what, exc.__class__.__name__)
-            time.sleep(delay)
+                log.warning("%s failed (%s: %s); retrying", what, exc.__class__.__name__, exc)
+            if stop is not None:
+                if stop.wait(delay):
+                    raise StopRequested(f"{what}: worker stopping") from exc
+            else:
+                time.sleep(delay)
             delay = min(max_delay_s, delay * 2.0)
 
 

@@ -10,13 +10,21 @@ reaches the driver. The worker reports the schedule the driver says it actually 
 from __future__ import annotations
 
 import logging
+import math
 import time
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from app.workers.common import LeaseKeeper, PermanentError, StopFlag, default_worker_id, retry
+from app.workers.common import (
+    LeaseKeeper,
+    PermanentError,
+    StopFlag,
+    StopRequested,
+    default_worker_id,
+    retry,
+)
 from app.workers.drivers.base import Driver, DriverCommand, Execution
 from app.workers.gate import SafetyRefusal, gate_hardware_trial
 from app.workers.objective import tip_speed_from_tracking
@@ -175,12 +183,17 @@ class HardwareWorker:
         delay = 0.05
         try:
             while not self.stop.is_set() and (max_trials is None or ran < max_trials):
-                claims = retry(
-                    lambda: self.client.claim(
-                        worker_id=self.worker_id, target="hardware", max_trials=1
-                    ),
-                    what="claim",
-                )
+                try:
+                    claims = retry(
+                        lambda: self.client.claim(
+                            worker_id=self.worker_id, target="hardware", max_trials=1
+                        ),
+                        what="claim",
+                        stop=self.stop,
+                        deadline_s=math.inf,
+                    )
+                except StopRequested:
+                    break
                 if not claims:
                     if idle_exit_s is not None and time.monotonic() - idle_since > idle_exit_s:
                         break

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import io
 import logging
+import math
 import multiprocessing as mp
 import time
 from collections.abc import Mapping
@@ -21,7 +22,14 @@ from typing import Any
 
 import numpy as np
 
-from app.workers.common import LeaseKeeper, PermanentError, StopFlag, default_worker_id, retry
+from app.workers.common import (
+    LeaseKeeper,
+    PermanentError,
+    StopFlag,
+    StopRequested,
+    default_worker_id,
+    retry,
+)
 
 log = logging.getLogger("handful.worker.sim")
 
@@ -151,11 +159,16 @@ class SimWorker:
 
     # --- HTTP, with retries ------------------------------------------------------------------
     def _claim(self, n: int) -> list[dict[str, Any]]:
-        return retry(
-            lambda: self.client.claim(worker_id=self.worker_id, target="sim", max_trials=n),
-            what="claim",
-            stop=self.stop,
-        )
+        """Claim up to n trials; waits out a server restart, gives up only when stopping."""
+        try:
+            return retry(
+                lambda: self.client.claim(worker_id=self.worker_id, target="sim", max_trials=n),
+                what="claim",
+                stop=self.stop,
+                deadline_s=math.inf,
+            )
+        except StopRequested:
+            return []
 
     def _post(self, job: _InFlight, outcome: SimOutcome) -> None:
         trial_id = job.trial["id"]

@@ -168,7 +168,8 @@ def test_worker_kill9_mid_trial_requeues_sim_and_holds_hardware_for_review(
 def test_hardware_worker_runs_only_confirmed_trials_and_reports_tracking(
     server_factory, worker_factory, tmp_path
 ):
-    server = server_factory()
+    # 1 s leases against a 5 s real-time trial: only heartbeats keep the lease alive.
+    server = server_factory(env={"HANDFUL_LEASE_SECONDS": "1"})
     api = server.client("operator")
     exp = hardware_experiment(api)
     confirmed, unconfirmed = api.suggest(exp["id"], n=2)
@@ -185,7 +186,8 @@ def test_hardware_worker_runs_only_confirmed_trials_and_reports_tracking(
         "--driver",
         "recording",
         *("-o", "inner=standin", "-o", f"log={log}", "-o", "inner.preset=fast"),
-        *("-o", "inner.fault_probability=0", "-o", "inner.tracker_loss_probability=0"),
+        *("-o", "inner.realtime=true", "-o", "inner.fault_probability=0"),
+        *("-o", "inner.tracker_loss_probability=0"),
         *("-o", f"inner.state_file={tmp_path / 'standin.json'}"),
         "--idle-exit",
         "3",
@@ -196,6 +198,7 @@ def test_hardware_worker_runs_only_confirmed_trials_and_reports_tracking(
     assert schedule_hash(reached[0]["pressure_schedule_pa"], None) == confirmed["schedule_hash"]
     done = api.get_trial(confirmed["id"])
     assert done["status"] == "completed", done["status_reason"]
+    assert done["attempts"] == 1 and done["duration_s"] >= 4.9  # real time, never lost
     assert done["executed_pressure_schedule_pa"] == confirmed["pressure_schedule_pa"]
     track = np.load(io.BytesIO(api.trajectory_npz(confirmed["id"])))
     assert set(track.files) >= {"time_s", "tip_pos_m", "tip_vel_m_s"}
@@ -224,3 +227,10 @@ def test_worker_token_cannot_create_suggest_measure_confirm_or_fail(api, worker_
     # What a worker token may do (claim, heartbeat, report) the tests above do through workers.
     assert api.get_trial(hw_trial["id"])["confirmed_hash"] is None
     assert api.get_trial(trial["id"])["n_measurements"] == 0
+
+
+def test_worker_with_a_viewer_token_exits_with_one_line(live_server, worker_factory):
+    proc = worker_factory(live_server, "sim", "--max-parallel", "1", role="viewer")
+    assert proc.wait(timeout_s=60) == 1
+    last = proc.log().strip().splitlines()[-1]
+    assert last.startswith("error: the server refused the worker: claim: HTTP 403")
