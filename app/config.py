@@ -7,6 +7,7 @@ Examples: ``HANDFUL_DATA_DIR=/srv/handful``, ``HANDFUL_DATABASE_URL=postgresql+p
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 from pydantic import BaseModel, Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -29,6 +30,9 @@ class Settings(BaseSettings):
     data_dir: Path = Field(Path("data"), description="database (SQLite) and artifacts folder")
     database_url: str | None = Field(
         None, description="SQLAlchemy URL; default sqlite:///<data_dir>/handful.db"
+    )
+    sqlite_synchronous: Literal["FULL", "NORMAL"] = Field(
+        "FULL", description="FULL: commits survive power loss; NORMAL: only a killed process"
     )
     host: str = "127.0.0.1"
     port: int = Field(8000, ge=1, le=65535)

@@ -52,6 +52,9 @@ ANONYMOUS = Actor("anonymous", VIEWER)
 def _bearer(request: Request) -> str | None:
     header = request.headers.get("authorization")
     if not header:
+        # EventSource (SSE) cannot send headers: the events stream may carry ?token=
+        if request.url.path.endswith("/events") and request.query_params.get("token"):
+            return request.query_params["token"]
         return None
     scheme, _, token = header.partition(" ")
     if scheme.lower() != "bearer" or not token.strip():

@@ -94,7 +94,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lifespan=_lifespan,
     )
     app.state.settings = settings
-    app.state.db = Database(settings.db_url)
+    app.state.db = Database(settings.db_url, sqlite_synchronous=settings.sqlite_synchronous)
     app.state.previews = PreviewRunner(settings.preview.workers, settings.preview.max_jobs)
     app.state.startup_hooks = []
     app.state.shutdown_hooks = []

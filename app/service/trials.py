@@ -188,7 +188,8 @@ class OptimizerInputs:
     kwargs: dict[str, Any]
     observations: list[Any]  # app.optim.Observation, in trial index order
     pending: np.ndarray | None  # (k, dim)
-    version: int
+    observed_ids: tuple[int, ...]  # trials behind ``observations``
+    pending_ids: frozenset[int]  # trials behind ``pending``
 
 
 def optimizer_inputs(session: Session, exp: Experiment) -> OptimizerInputs:
@@ -200,8 +201,11 @@ def optimizer_inputs(session: Session, exp: Experiment) -> OptimizerInputs:
     )
     obs = []
     pending = []
+    observed_ids: list[int] = []
+    pending_ids: set[int] = set()
     for t in trials:
         if t.status == lc.COMPLETED and t.objective is not None:
+            observed_ids.append(t.id)
             theta = t.executed_theta if t.executed_theta is not None else t.theta
             obs.append(
                 Observation(
@@ -212,6 +216,7 @@ def optimizer_inputs(session: Session, exp: Experiment) -> OptimizerInputs:
             )
         elif t.status in lc.PENDING:
             pending.append(t.theta)
+            pending_ids.add(t.id)
     dim = exp.horizon + int(exp.with_release)
     return OptimizerInputs(
         method=exp.method,
@@ -220,7 +225,8 @@ def optimizer_inputs(session: Session, exp: Experiment) -> OptimizerInputs:
         kwargs=optimizer_kwargs(exp),
         observations=obs,
         pending=np.asarray(pending, dtype=np.float64).reshape(-1, dim) if pending else None,
-        version=exp.version,
+        observed_ids=tuple(observed_ids),
+        pending_ids=frozenset(pending_ids),
     )
 
 
@@ -241,7 +247,12 @@ def ask(inputs: OptimizerInputs, n: int) -> tuple[np.ndarray, np.ndarray | None,
     opt = build_optimizer(inputs)
     thetas = np.asarray(opt.suggest(n, pending=inputs.pending), dtype=np.float64).reshape(n, -1)
     mean = std = None
-    if hasattr(opt, "predict") and len(inputs.observations) >= 2:
+    # Predict only once the optimiser has a model (past its initial design): then the GP it
+    # just fitted for the suggestion is reused and the prediction costs next to nothing.
+    n_obs = len(inputs.observations)
+    n_pending = 0 if inputs.pending is None else len(inputs.pending)
+    initial_only = n_obs < 2 or n_obs + n_pending + n <= getattr(opt, "n_initial", 0)
+    if hasattr(opt, "predict") and not initial_only:
         try:
             mean, std = opt.predict(thetas)
         except (OptimError, ValueError, RuntimeError):
@@ -252,10 +263,12 @@ def ask(inputs: OptimizerInputs, n: int) -> tuple[np.ndarray, np.ndarray | None,
 def suggest(db: Database, experiment_id: int, n: int, *, actor: Actor) -> list[TrialRead]:
     """Ask the optimiser for ``n`` trials given the completed and pending ones; store them.
 
-    The optimiser runs outside the write lock; if the experiment changed meanwhile the
-    suggestion is recomputed, so the stored trials always follow from the stored data.
+    The optimiser runs outside the write lock (a GP fit takes seconds; workers keep
+    reporting meanwhile). Before storing, the data is compared with what the optimiser saw:
+    a trial added meanwhile (another suggest or attach) always forces a recompute, so two
+    suggestions never ignore each other; new observations force one for up to 3 rounds.
     """
-    for _ in range(5):
+    for attempt in range(8):
         with db.read() as s:
             exp = get_experiment(s, experiment_id)
             _check_can_add(s, exp, n)
@@ -263,7 +276,10 @@ def suggest(db: Database, experiment_id: int, n: int, *, actor: Actor) -> list[T
         thetas, mean, std = ask(inputs, n)
         with db.write() as s:
             exp = get_experiment(s, experiment_id)
-            if exp.version != inputs.version:
+            now = optimizer_inputs(s, exp)
+            if not now.pending_ids <= inputs.pending_ids | set(inputs.observed_ids):
+                continue  # someone added trials: their θ must count as pending
+            if now.observed_ids != inputs.observed_ids and attempt < 3:
                 continue
             _check_can_add(s, exp, n)
             index = _next_index(s, exp)
@@ -284,7 +300,7 @@ def suggest(db: Database, experiment_id: int, n: int, *, actor: Actor) -> list[T
             touch(exp)
             s.flush()
             return [TrialRead.build(t, has_trajectory=False) for t in trials]
-    raise Conflict("the experiment kept changing while the optimiser ran; try again")
+    raise Conflict("trials kept being added while the optimiser ran; try again")
 
 
 def attach(

@@ -214,3 +214,15 @@ def test_events_stream_sends_the_version(live_server, api):
         assert r.headers["content-type"].startswith("text/event-stream")
         first = next(line for line in r.iter_lines() if line.startswith("data:"))
     assert json.loads(first.removeprefix("data:")) == {"version": api.version(exp["id"])}
+
+
+def test_events_stream_accepts_a_token_in_the_query(live_server, api):
+    """Browsers' EventSource cannot send headers: ?token= works on the events stream only."""
+    exp = new_exp(api)
+    base = f"{live_server.url}/api/experiments/{exp['id']}"
+    token = live_server.tokens["viewer"]
+    with httpx.stream("GET", f"{base}/events?token={token}", timeout=10) as r:
+        assert r.status_code == 200
+        first = next(line for line in r.iter_lines() if line.startswith("data:"))
+    assert json.loads(first.removeprefix("data:"))["version"] >= 1
+    assert httpx.get(f"{base}/version?token={token}").status_code == 401
