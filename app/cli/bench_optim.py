@@ -43,6 +43,9 @@ def optim(
     address: str = typer.Option(None, "--address", help="Ray cluster address (with --backend ray)"),
     workers: int = typer.Option(0, "--workers", help="parallel runs (default: all cores)"),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="show progress bars"),
+    cached_only: bool = typer.Option(
+        False, "--cached-only", help="run nothing: write the outputs from the finished runs in DIR"
+    ),
 ) -> None:
     """Run BO, CEM, random search, Optuna and CMA-ES on the simulated tasks; write
     DIR/results.csv, DIR/summary.md and DIR/curves.png. Finished runs are cached and skipped."""
@@ -70,9 +73,20 @@ def optim(
         )
     except SettingsError as exc:
         _fail(str(exc))
-    runs = sweep.run_sweep(
-        specs, out, backend=backend, address=address, workers=workers or None, progress=progress
-    )
+    if cached_only:
+        runs = {s: r for s in specs if (r := sweep.cached_rows(s, out)) is not None}
+        if not runs:
+            _fail(f"no finished runs of this sweep in {out}")
+        specs = [s for s in specs if s in runs]
+    else:
+        runs = sweep.run_sweep(
+            specs,
+            out,
+            backend=backend,
+            address=address,
+            workers=workers or None,
+            progress=progress,
+        )
     sweep.write_outputs(out, specs, runs, budgets)
     typer.echo((out / "summary.md").read_text())
     typer.echo(f"wrote {out / 'results.csv'}, {out / 'summary.md'}, {out / 'curves.png'}")

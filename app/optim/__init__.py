@@ -32,6 +32,8 @@ BO_METHODS: dict[str, dict[str, Any]] = {
         "space": "levels",
         "initial_design": "corners",
         "raw_samples": 1024,
+        "num_restarts": 4,
+        "fit_maxiter": 75,
     },
 }
 BASELINE_METHODS = ("cem", "random", "optuna-tpe", "optuna-gp", "cmaes")

@@ -35,7 +35,7 @@ from botorch.models.utils.gpytorch_modules import (
     get_gaussian_likelihood_with_gamma_prior,
     get_matern_kernel_with_gamma_prior,
 )
-from botorch.optim import optimize_acqf, optimize_acqf_discrete_local_search
+from botorch.optim import optimize_acqf
 from botorch.sampling import SobolQMCNormalSampler
 from gpytorch.mlls import ExactMarginalLogLikelihood
 
@@ -68,6 +68,7 @@ class BOSettings:
     horizon: int = 10
     initial_design: str = "sobol"
     corner_prob: float = 0.5
+    fit_maxiter: int | None = None
 
 
 def _check_settings(dim: int, settings: dict[str, Any]) -> BOSettings:
@@ -94,6 +95,10 @@ def _check_settings(dim: int, settings: dict[str, Any]) -> BOSettings:
         v = getattr(s, name)
         if isinstance(v, bool) or not isinstance(v, int) or v < 1:
             raise SettingsError(f"{name} must be an integer ≥ 1, got {v!r}")
+    if s.fit_maxiter is not None and (
+        isinstance(s.fit_maxiter, bool) or not isinstance(s.fit_maxiter, int) or s.fit_maxiter < 1
+    ):
+        raise SettingsError(f"fit_maxiter must be an integer ≥ 1, got {s.fit_maxiter!r}")
     if s.n_initial is not None and (
         isinstance(s.n_initial, bool) or not isinstance(s.n_initial, int) or s.n_initial < 2
     ):
@@ -186,12 +191,18 @@ def build_gp(
     return SingleTaskGP(train_x, train_y, train_yvar, **kwargs)
 
 
-def fit_gp(model: SingleTaskGP) -> SingleTaskGP:
-    """Fit the GP's hyperparameters by L-BFGS-B on the marginal likelihood (BoTorch retries)."""
+def fit_gp(model: SingleTaskGP, maxiter: int | None = None) -> SingleTaskGP:
+    """Fit the GP's hyperparameters by L-BFGS-B on the marginal likelihood (BoTorch retries).
+
+    ``maxiter`` caps L-BFGS-B iterations (None: BoTorch's default).
+    """
     mll = ExactMarginalLogLikelihood(model.likelihood, model)
+    kwargs: dict[str, Any] = {}
+    if maxiter is not None:
+        kwargs["optimizer_kwargs"] = {"options": {"maxiter": maxiter}}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        fit_gpytorch_mll(mll)
+        fit_gpytorch_mll(mll, **kwargs)
     model.eval()
     return model
 
@@ -214,6 +225,7 @@ class BayesOpt(Optimizer):
         mc_samples: QMC samples of the q-acquisitions.
         space: "theta" (paper) or "levels" (needs ``levels``; see the module docstring).
         levels, horizon: P and H of the policy, for ``space="levels"``.
+        fit_maxiter: cap on the GP fit's L-BFGS-B iterations (None: BoTorch's default).
         initial_design: "sobol", or "corners" (Sobol on the level grid with each level pushed
             to its lowest/highest value with probability ``corner_prob``: bang-bang actions).
     """
@@ -267,7 +279,10 @@ class BayesOpt(Optimizer):
             tx, ty, tyvar = self._train_tensors()
             with _TORCH_RNG_LOCK, torch.random.fork_rng():
                 torch.manual_seed(call_seed(self.seed, self.n_observed, 0, salt=1))
-                self._model = fit_gp(build_gp(tx, ty, tyvar, self.settings.model_preset))
+                self._model = fit_gp(
+                    build_gp(tx, ty, tyvar, self.settings.model_preset),
+                    self.settings.fit_maxiter,
+                )
             self._model_n = self.n_observed
         return self._model
 
@@ -350,6 +365,74 @@ class BayesOpt(Optimizer):
             acq = LogExpectedImprovement(model, best_f=float(y.max()))
         return acq
 
+    def _grid_search(
+        self, acq: AcquisitionFunction, q: int, x_seen: torch.Tensor, rng: np.random.Generator
+    ) -> np.ndarray:
+        """Maximise ``acq`` over the level grid: (q, F) features, none of them already seen.
+
+        Scores ``raw_samples`` random grid points plus mutants of the best observations,
+        then hill-climbs from the best ``num_restarts`` over single-feature changes. For q > 1,
+        picks greedily, each pick becoming pending for the next (MC acquisitions).
+        """
+        assert self.space is not None
+        s = self.settings
+        sp = self.space
+        sizes = np.array([len(c) for c in sp.choices()])  # grid points per feature
+        scale = np.maximum(sizes - 1, 1)
+
+        def to_x(idx: np.ndarray) -> torch.Tensor:
+            return torch.as_tensor(idx / scale, dtype=DTYPE)
+
+        def score(idx: np.ndarray) -> np.ndarray:
+            with torch.no_grad():
+                xs = to_x(idx).unsqueeze(-2)
+                vals = [acq(xs[i : i + 1024]) for i in range(0, len(xs), 1024)]
+            return torch.cat(vals).numpy()
+
+        seen = {tuple(r) for r in np.rint(x_seen.numpy() * scale).astype(np.int64)}
+        _, y, _ = self.train_data()
+        top = np.rint(x_seen.numpy()[: len(y)][np.argsort(-y)[:5]] * scale).astype(np.int64)
+        picks: list[np.ndarray] = []
+        for _ in range(q):
+            pool = [rng.integers(0, sizes, size=(s.raw_samples, len(sizes)))]
+            for base in top:
+                mut = np.repeat(base[None], 64, axis=0)
+                for row in mut:
+                    k = rng.integers(1, 4)
+                    j = rng.choice(len(sizes), size=k, replace=False)
+                    row[j] = rng.integers(0, sizes[j])
+                pool.append(mut)
+            cand = np.unique(np.concatenate(pool), axis=0)
+            cand = cand[[tuple(r) not in seen for r in cand]]
+            vals = score(cand)
+            order = np.argsort(-vals)[: s.num_restarts]
+            starts, start_vals = cand[order], vals[order]
+            for _round in range(20):
+                moved = False
+                for i in range(len(starts)):
+                    nb = np.repeat(starts[i][None], int(sizes.sum()), axis=0)
+                    feat = np.repeat(np.arange(len(sizes)), sizes)
+                    lvl = np.concatenate([np.arange(n) for n in sizes])
+                    nb[np.arange(len(nb)), feat] = lvl
+                    keep = [(tuple(r) not in seen) and (r != starts[i]).any() for r in nb]
+                    nb = nb[keep]
+                    if not len(nb):
+                        continue
+                    v = score(nb)
+                    j = int(np.argmax(v))
+                    if v[j] > start_vals[i]:
+                        starts[i], start_vals[i], moved = nb[j], v[j], True
+                if not moved:
+                    break
+            best = starts[int(np.argmax(start_vals))]
+            picks.append(best)
+            seen.add(tuple(best))
+            if q > 1 and hasattr(acq, "set_X_pending"):
+                prev = acq.X_pending
+                new = to_x(best[None])
+                acq.set_X_pending(new if prev is None else torch.cat([prev, new]))
+        return np.stack(picks) / scale
+
     def _acquire(self, q: int, pending: np.ndarray) -> np.ndarray:
         s = self.settings
         seed = call_seed(self.seed, self.n_observed, len(pending))
@@ -360,18 +443,11 @@ class BayesOpt(Optimizer):
             acq = self._acquisition(model, pend, q, seed)
             if self._use_levels:
                 assert self.space is not None
-                seen = [self._train_tensors()[0]]
+                x_seen = self._train_tensors()[0]
                 if pend is not None:
-                    seen.append(pend)
-                cand, _ = optimize_acqf_discrete_local_search(
-                    acq,
-                    discrete_choices=self.space.choices(),
-                    q=q,
-                    num_restarts=s.num_restarts,
-                    raw_samples=s.raw_samples,
-                    X_avoid=torch.cat(seen),
-                )
-                return self.space.to_theta(cand.detach().numpy())
+                    x_seen = torch.cat([x_seen, pend])
+                cand = self._grid_search(acq, q, x_seen, np.random.default_rng(seed))
+                return self.space.to_theta(cand)
             cand, _ = optimize_acqf(
                 acq,
                 bounds=_unit_bounds(self.dim),

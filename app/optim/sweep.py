@@ -23,6 +23,12 @@ import numpy as np
 from app.optim import METHODS, NEEDS_LEVELS, Observation, SettingsError, make_optimizer
 
 TASKS = ("throw", "hammer", "tip_speed")
+# Rough cost per trial, cheapest first: a sweep runs cheap methods (and larger P) first, so an
+# interrupted sweep still leaves complete rows for them.
+_COST_RANK = {
+    "random": 0, "cem": 0, "cmaes": 0, "optuna-tpe": 1, "bo-lei": 2, "bo-handful": 3,
+    "optuna-gp": 4, "bo-ucb": 5, "bo-lei-default": 6,
+}  # fmt: skip
 RESULT_COLUMNS = ("method", "task", "levels", "seed", "trial", "objective", "best_so_far", "wall_s")
 _RUN_COLUMNS = ("trial", "objective", "wall_s", "theta")
 
@@ -38,11 +44,17 @@ class RunSpec:
     budget: int
     preset: str = "reference"
     settings: dict[str, Any] = field(default_factory=dict, hash=False, compare=False)
+    label: str | None = None
+
+    @property
+    def name(self) -> str:
+        """The method's name in outputs: ``label`` (a variant with its own settings) or method."""
+        return self.label or self.method
 
     @property
     def key(self) -> str:
         """File-name stem of this run's cache (the budget is not part of it: longer runs reuse)."""
-        return f"{self.task}_P{self.levels}_{self.method}_s{self.seed}_{self.preset}"
+        return f"{self.task}_P{self.levels}_{self.name}_s{self.seed}_{self.preset}"
 
     @property
     def with_release(self) -> bool:
@@ -170,7 +182,11 @@ def run_one(
             return done
     f = objective or objective_fn(spec.task, spec.levels, spec.preset)
     settings = dict(spec.settings)
-    if spec.method in NEEDS_LEVELS:
+    if (
+        spec.method in NEEDS_LEVELS
+        or settings.get("space") == "levels"
+        or settings.get("initial_design") == "corners"
+    ):
         settings.setdefault("levels", spec.levels)
     opt = make_optimizer(spec.method, policy_dim(spec.task), seed=spec.seed, **settings)
     rows: list[dict[str, Any]] = []
@@ -260,7 +276,7 @@ def result_rows(spec: RunSpec, rows: Iterable[dict[str, Any]]) -> list[dict[str,
         best = max(best, float(r["objective"]))
         out.append(
             {
-                "method": spec.method,
+                "method": spec.name,
                 "task": spec.task,
                 "levels": spec.levels,
                 "seed": spec.seed,
@@ -319,7 +335,7 @@ def best_at(
     out: dict[tuple[str, str, int, int], list[float]] = {}
     for (task, method, p, _seed), curve in sorted(by_run.items()):
         for b in budgets:
-            if len(curve) >= b:
+            if 1 <= b <= len(curve):
                 out.setdefault((task, method, p, b), []).append(curve[b - 1])
     return out
 
@@ -460,6 +476,7 @@ def run_sweep(
             todo.append(s)
         else:
             results[s] = rows
+    todo.sort(key=lambda s: (_COST_RANK.get(s.method, 9), -s.levels))
     n_workers = max(1, workers or os.cpu_count() or 1)
     total_trials = sum(s.budget for s in specs)
     bar_runs = tqdm(total=len(specs), desc="runs", unit="run", disable=not progress, position=0)
