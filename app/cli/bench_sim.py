@@ -32,7 +32,11 @@ from app.sim.presets import get_preset
 from app.sim.rollout import _cached_model
 
 TASK = "hammer"
-PUBLISHED_SIM_S = 0.94  # the published (dm_control) simulator's 5 s episode, as the issue gives
+# The issue's numbers on the team's 2-core machine: raw reference loop ≈ 0.35 s, the published
+# (dm_control) simulator 0.94 s per 5 s episode, so `fast` must cost ≤ 0.09 s there, i.e.
+# ≤ 0.09 / 0.35 of the raw reference loop measured in the same run.
+ISSUE_RAW_REFERENCE_S = 0.35
+PUBLISHED_SIM_S = 0.94
 
 
 @dataclass
@@ -129,10 +133,15 @@ def _pool_eps(preset: str, workers: int, scheds: list[np.ndarray]) -> float:
 
 
 def bench_throughput(preset: str, episodes: int, seed: int) -> ThroughputRow:
-    """Episodes per second with 1 and 2 worker processes (warm pools), and the raw loop."""
+    """Episodes per second with 1 and 2 worker processes (warm pools), and the raw loop.
+
+    ``episodes`` is for the reference preset; faster presets run proportionally more, so
+    every run lasts about as long and the last, unpaired episode weighs little.
+    """
     p = get_preset(preset)
     model = _cached_model(TASK, p, effective_params(p, None))
-    scheds, _ = _schedules(episodes, seed, TASK)
+    scale = max(1, round(p.timestep_s / get_preset("reference").timestep_s))
+    scheds, _ = _schedules(2 * (episodes * scale // 2), seed, TASK)
     t0 = time.perf_counter()
     for s in scheds:
         _raw_loop(model, s)
@@ -193,14 +202,24 @@ def render(
         "objective). Ratios are medians of per-pair ratios (pairs timed back to back).",
         "",
         "| preset | raw mj_step loop (s) | rollout (s) | rollout / raw (wall) "
-        f"| rollout / raw (CPU) | vs published sim ({PUBLISHED_SIM_S} s) |",
-        "|---|---|---|---|---|---|",
+        "| rollout / raw (CPU) | rollout / raw reference loop "
+        f"| scaled to {ISSUE_RAW_REFERENCE_S} s raw reference (s) |",
+        "|---|---|---|---|---|---|---|",
     ]
+    raw_ref = next(r.raw_s for r in speed if r.preset == "reference")
     for r in speed:
+        rel = r.rollout_s / raw_ref
         lines.append(
             f"| {r.preset} | {r.raw_s:.3f} | {r.rollout_s:.3f} | {r.ratio:.3f} | "
-            f"{r.ratio_cpu:.3f} | {PUBLISHED_SIM_S / r.rollout_s:.1f}× faster |"
+            f"{r.ratio_cpu:.3f} | {rel:.3f} | {rel * ISSUE_RAW_REFERENCE_S:.3f} |"
         )
+    lines += [
+        "",
+        f"Targets: reference rollout / raw ≤ 1.15; fast ≤ 0.09 s where the raw reference loop "
+        f"takes {ISSUE_RAW_REFERENCE_S} s (fast / raw reference ≤ "
+        f"{0.09 / ISSUE_RAW_REFERENCE_S:.3f}); the published simulator takes "
+        f"{PUBLISHED_SIM_S} s there ({PUBLISHED_SIM_S / ISSUE_RAW_REFERENCE_S:.1f}× the raw loop).",
+    ]
     lines += [
         "",
         "## Throughput (hammer episodes per second)",
@@ -297,8 +316,22 @@ def bench_sim(
         fidelity_n=fidelity_schedules,
         seed=seed,
         write=write,
-        command="handful " + " ".join(sys.argv[1:]),
+        command=_command_line(),
     )
+
+
+def _command_line() -> str:
+    argv = sys.argv
+    if Path(argv[0]).name == "handful":
+        return "handful " + " ".join(argv[1:])
+    return "python " + " ".join([_relative(argv[0]), *argv[1:]])
+
+
+def _relative(path: str) -> str:
+    try:
+        return str(Path(path).resolve().relative_to(Path.cwd()))
+    except ValueError:
+        return path
 
 
 def register(bench_app: typer.Typer) -> None:

@@ -277,6 +277,13 @@ _WARNING_TEXT = {
 _BAD_WARNINGS = tuple(_WARNING_TEXT)
 
 
+def _check_warnings(warn: Any, task: str, preset: str, t: float) -> None:
+    bad = [w for w in _BAD_WARNINGS if warn[w].number]
+    if bad:
+        what = ", ".join(_WARNING_TEXT[w] for w in bad)
+        raise _diverged(task, preset, t, f"MuJoCo found {what} (by this time)")
+
+
 def rollout(
     task: str,
     pressure_schedule_pa: np.ndarray,
@@ -345,29 +352,29 @@ def _simulate(
     # following mj_step2 finishes that physics step. So every sample reads the state exactly
     # at its time at no extra cost (acceleration-stage sensors, the plate's touch reading,
     # come from the last completed step).
+    ctrl_points = {c * n_ctrl: c for c in range(horizon)}  # step k → control steps done
+    gaps = np.diff(points, prepend=0).tolist()
     data.ctrl[:] = schedule[0]
     step1(model, data)
-    prev = 0
-    for idx, k in enumerate(points):
-        if k > 0:
+    for idx, (k, gap) in enumerate(zip(points, gaps, strict=True)):
+        if gap:
             step2(model, data)
-            if k - prev > 1:
-                step(model, data, k - prev - 1)
+            if gap > 1:
+                step(model, data, gap - 1)
             step1(model, data)
-            prev = k
-            bad = [w for w in _BAD_WARNINGS if warn[w].number]
-            if bad:
-                what = ", ".join(_WARNING_TEXT[w] for w in bad)
-                raise _diverged(task, name, k * dt, f"MuJoCo found {what}")
         qpos[idx] = data.qpos
         act[idx] = data.act
         sensors[idx] = data.sensordata
-        if k % n_ctrl == 0 and k < n_total:
-            done = k // n_ctrl  # control steps completed so far
+        done = ctrl_points.get(k)
+        if done is not None:
+            # MuJoCo counts unstable states (and resets them) rather than stopping: check
+            # the counters once per control step, so a blow-up is caught within 5 s / H.
+            _check_warnings(warn, task, name, k * dt)
             data.ctrl[:] = schedule[done]
             if release is not None and done == release:
                 data.eq_active[lay.weld] = 0
                 step1(model, data)  # rebuild the constraints without the weld
+    _check_warnings(warn, task, name, n_total * dt)
 
     tip_pos = sensors[:, lay.eef_pos : lay.eef_pos + 3]
     tip_vel = sensors[:, lay.eef_linvel : lay.eef_linvel + 3]
