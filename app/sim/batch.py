@@ -92,7 +92,9 @@ class RolloutPool:
         """Run each (schedule, release_step); yields RolloutResults in order."""
         pairs = zip(schedules, release_steps, strict=True)
         items = [(i, np.asarray(s, dtype=np.float64), r) for i, (s, r) in enumerate(pairs)]
-        return self._executor.map(_run_one, items)
+        # a few items per message, yet ≥ 4 chunks per worker so the load stays balanced
+        chunk = max(1, min(8, len(items) // (4 * self.n_workers)))
+        return self._executor.map(_run_one, items, chunksize=chunk)
 
     def close(self) -> None:
         self._executor.shutdown(wait=True, cancel_futures=True)
