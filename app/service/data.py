@@ -95,7 +95,7 @@ def import_observations(
     session: Session, experiment_id: int, body: ImportIn, *, actor: Actor
 ) -> list[TrialRead]:
     """Add past observations as completed trials (source ``import``), all or nothing."""
-    exp = get_experiment(session, experiment_id)
+    exp = get_experiment(session, experiment_id, for_update=True)
     _check_can_add(session, exp, len(body.observations))
     index = _next_index(session, exp)
     out = []

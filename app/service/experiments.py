@@ -149,8 +149,8 @@ def _check_preset(preset: str) -> None:
 
 
 def get_experiment(session: Session, experiment_id: int, *, for_update: bool = False) -> Experiment:
-    """The experiment or NotFound."""
-    exp = session.get(Experiment, experiment_id)
+    """The experiment or NotFound; ``for_update`` locks its row (PostgreSQL)."""
+    exp = session.get(Experiment, experiment_id, with_for_update=for_update or None)
     if exp is None:
         raise NotFound(f"experiment {experiment_id} not found")
     return exp

@@ -295,7 +295,7 @@ def report_result(
         raise DuplicateRequest(
             f"lease {lease.id} already has a different result recorded; nothing stored again"
         )
-    trial = session.get(Trial, trial_id)
+    trial = session.get(Trial, trial_id, with_for_update=True)
     if lease.status != "active" or trial is None:
         session.commit()
         raise _lost(lease, trial)

@@ -156,7 +156,7 @@ def add_measurements(
             f"Idempotency-Key {idempotency_key!r} was already used for a different request "
             f"({seen.summary}); use a new key"
         )
-    trial = get_trial(session, trial_id)
+    trial = get_trial(session, trial_id, for_update=True)
     exp: Experiment = trial.experiment
     if trial.status not in MEASURABLE:
         raise IllegalTransition(

@@ -46,7 +46,7 @@ def run_trial(db: Database, trial_id: int, *, actor: Actor, artifacts_dir: Path)
     from app.sim import SimulationDiverged, rollout
 
     with db.write() as s:
-        trial = get_trial(s, trial_id)
+        trial = get_trial(s, trial_id, for_update=True)
         exp = trial.experiment
         if exp.target != "sim":
             raise Conflict(f"trial {trial.id} is a hardware trial; a hardware worker runs it")
@@ -68,7 +68,7 @@ def run_trial(db: Database, trial_id: int, *, actor: Actor, artifacts_dir: Path)
     except SimulationDiverged as exc:
         error = f"simulation diverged: {exc}"
     with db.write() as s:
-        trial = get_trial(s, trial_id)
+        trial = get_trial(s, trial_id, for_update=True)
         exp = trial.experiment
         if trial.status != lc.RUNNING:  # aborted while it ran
             return TrialRead.build(trial)

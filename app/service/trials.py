@@ -29,9 +29,10 @@ from app.service.schemas import ResolveIn, TrialDetail, TrialRead
 
 
 # --- reading ---------------------------------------------------------------------------------
-def get_trial(session: Session, trial_id: int) -> Trial:
-    """The trial or NotFound."""
-    trial = session.get(Trial, trial_id)
+def get_trial(session: Session, trial_id: int, *, for_update: bool = False) -> Trial:
+    """The trial or NotFound; ``for_update`` locks its row (PostgreSQL; SQLite's write
+    sessions already hold the database's write lock)."""
+    trial = session.get(Trial, trial_id, with_for_update=for_update or None)
     if trial is None:
         raise NotFound(f"trial {trial_id} not found")
     return trial
@@ -275,7 +276,7 @@ def suggest(db: Database, experiment_id: int, n: int, *, actor: Actor) -> list[T
             inputs = optimizer_inputs(s, exp)
         thetas, mean, std = ask(inputs, n)
         with db.write() as s:
-            exp = get_experiment(s, experiment_id)
+            exp = get_experiment(s, experiment_id, for_update=True)
             now = optimizer_inputs(s, exp)
             if not now.pending_ids <= inputs.pending_ids | set(inputs.observed_ids):
                 continue  # someone added trials: their θ must count as pending
@@ -307,7 +308,7 @@ def attach(
     session: Session, experiment_id: int, theta: list[float], *, note: str, actor: Actor
 ) -> TrialRead:
     """Add a trial with an operator-chosen θ (checked like any other), committed."""
-    exp = get_experiment(session, experiment_id)
+    exp = get_experiment(session, experiment_id, for_update=True)
     _check_can_add(session, exp, 1)
     predicted = None
     trial = _new_trial(
@@ -353,7 +354,7 @@ def _end_lease(session: Session, trial: Trial, status: str, *, actor: Actor, why
 
 def fail(session: Session, trial_id: int, reason: str, *, actor: Actor) -> TrialRead:
     """Mark a trial failed (an abort when it is running: its lease is revoked)."""
-    trial = get_trial(session, trial_id)
+    trial = get_trial(session, trial_id, for_update=True)
     was = trial.status
     lc.transition(
         session,
@@ -372,7 +373,7 @@ def fail(session: Session, trial_id: int, reason: str, *, actor: Actor) -> Trial
 
 def abandon(session: Session, trial_id: int, reason: str, *, actor: Actor) -> TrialRead:
     """Abandon a trial: never run, never suggested again (its lease, if any, is revoked)."""
-    trial = get_trial(session, trial_id)
+    trial = get_trial(session, trial_id, for_update=True)
     was = trial.status
     lc.transition(
         session,
@@ -395,7 +396,7 @@ def resolve(session: Session, trial_id: int, body: ResolveIn, *, actor: Actor) -
     requeue: a sim trial goes back to queued; a hardware trial goes back to
     awaiting_confirmation and needs a fresh confirmation. complete: needs measurements.
     """
-    trial = get_trial(session, trial_id)
+    trial = get_trial(session, trial_id, for_update=True)
     if trial.status != lc.NEEDS_REVIEW:
         raise lc.IllegalTransition(
             f"cannot resolve: trial {trial.id} is {trial.status}, not needs_review",
@@ -436,7 +437,7 @@ def resolve(session: Session, trial_id: int, body: ResolveIn, *, actor: Actor) -
 
 def confirm(session: Session, trial_id: int, given_hash: str, *, actor: Actor) -> TrialRead:
     """An operator's go-ahead for exactly this schedule (hash), re-checked against the limits."""
-    trial = get_trial(session, trial_id)
+    trial = get_trial(session, trial_id, for_update=True)
     exp = trial.experiment
     if exp.target != "hardware":
         raise Conflict(f"trial {trial.id} is a sim trial; only hardware trials are confirmed")

@@ -226,3 +226,17 @@ def test_events_stream_accepts_a_token_in_the_query(live_server, api):
         first = next(line for line in r.iter_lines() if line.startswith("data:"))
     assert json.loads(first.removeprefix("data:"))["version"] >= 1
     assert httpx.get(f"{base}/version?token={token}").status_code == 401
+
+
+def test_openapi_docs_and_health(live_server):
+    assert httpx.get(live_server.url + "/docs").status_code == 200
+    paths = httpx.get(live_server.url + "/openapi.json").json()["paths"]
+    for path in (
+        "/api/experiments/{experiment_id}/suggest",
+        "/api/workers/claim",
+        "/api/trials/{trial_id}/confirm",
+        "/api/previews/{job_id}",
+    ):
+        assert path in paths
+    health = httpx.get(live_server.url + "/health").json()
+    assert (health["status"], health["db"]) == ("ok", "ok") and health["version"]
