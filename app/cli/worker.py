@@ -83,6 +83,12 @@ def sim(
     max_trials: MaxTrialsOpt = None,
     idle_exit: IdleOpt = None,
     poll: PollOpt = 1.0,
+    prefetch: Annotated[
+        int,
+        typer.Option(
+            "--prefetch", min=0, help="trials claimed ahead so no process waits on the network"
+        ),
+    ] = 1,
     no_qpos: Annotated[
         bool, typer.Option("--no-qpos", help="do not upload joint positions (no 3D replay)")
     ] = False,
@@ -101,6 +107,7 @@ def sim(
         worker_id=worker_id,
         poll_s=poll,
         record_qpos=not no_qpos,
+        prefetch=prefetch,
         stop=stop,
     )
     logging.getLogger("handful.worker").info(

@@ -131,6 +131,8 @@ class SimWorker:
         poll_s: longest pause between claims when the queue is empty.
         heartbeat_s: heartbeat period; default a third of the lease the server grants.
         record_qpos: upload joint positions too (3D replay on the dashboard).
+        prefetch: trials claimed beyond `max_parallel`, waiting in the pool's queue, so a
+            process starts its next rollout while the last result is being uploaded.
     """
 
     def __init__(
@@ -142,6 +144,7 @@ class SimWorker:
         poll_s: float = 1.0,
         heartbeat_s: float | None = None,
         record_qpos: bool = True,
+        prefetch: int = 1,
         stop: StopFlag | None = None,
     ) -> None:
         import os
@@ -152,6 +155,7 @@ class SimWorker:
         self.poll_s = poll_s
         self.heartbeat_s = heartbeat_s
         self.record_qpos = record_qpos
+        self.prefetch = max(0, int(prefetch))
         self.stop = stop or StopFlag()
         self.completed = 0
         self.faulted = 0
@@ -212,7 +216,7 @@ class SimWorker:
         ) as pool:
             try:
                 while True:
-                    room = self.max_parallel - len(in_flight)
+                    room = self.max_parallel + self.prefetch - len(in_flight)
                     if max_trials is not None:
                         room = min(room, max_trials - ran - len(in_flight))
                     if room > 0 and not self.stop.is_set():
