@@ -31,7 +31,7 @@ async function embed(body, legend, gen) {
   const view = await api("POST", "/viz/views", { body });
   if (gen !== generation) return;
   progress(null);
-  $("#viz-legend").textContent = [legend || `Showing ${view.label}.`, view.overlay_label ? `Overlay (blue, see-through): ${view.overlay_label}.` : ""].filter(Boolean).join(" ");
+  $("#viz-legend").textContent = [legend || `Showing ${view.label}.`, view.overlay_label ? `Blue, see-through: the best trial so far, ${view.overlay_label}.` : ""].filter(Boolean).join(" ");
   $("#viz-frame-holder").replaceChildren(el("iframe", {
     id: "viz-frame", src: viserUrl(view.port, view.key), title: `3D view: ${view.label}`, allow: "fullscreen",
   }));
