@@ -126,7 +126,7 @@ async function renderModel() {
     $("#model-plots").hidden = false;
     empty.textContent = model.message || `GP fitted on ${model.n_observations} observations; best trial ${model.incumbent_trial_id ?? "?"} (${fmt(model.incumbent_objective)}).`;
     relevance($("#relevance-plot"), model.lengthscales);
-    slices($("#slices-plot"), model.slices || [], model.incumbent_theta);
+    slices($("#slices-plot"), model.slices || [], model.incumbent_theta, model.lengthscales);
   } catch (err) {
     $("#model-plots").hidden = true;
     empty.textContent = `No model insight: ${err.message}`;

@@ -58,20 +58,24 @@ export function relevance(node, lengthscales) {
   { title: { text: "relevance (1 / lengthscale)", font: { size: 13 } }, yaxis: { title: { text: "1 / ℓ" } } });
 }
 
-/** slices: [{dim, x, mean, std}] posterior slices through the incumbent. */
-export function slices(node, sl, incumbent) {
+/** slices: [{dim, theta, mean, std}] posterior slices through the incumbent; the three most
+ * relevant dimensions (shortest lengthscales) are shown, the others one click away. */
+export function slices(node, sl, incumbent, lengthscales = null) {
   const data = [];
+  const order = lengthscales ? lengthscales.map((l, i) => [l, i]).sort((a, b) => a[0] - b[0]).map((p) => p[1]) : [];
+  const shown = new Set(order.slice(0, 3));
   sl.forEach((s, i) => {
     const x = s.x || s.grid || s.theta;
     const mean = s.mean; const std = s.std || mean.map(() => 0);
     const dim = s.dim ?? s.dimension ?? i;
-    data.push({ type: "scatter", mode: "lines", name: `θ${dim}`, x, y: mean, legendgroup: `d${dim}`,
-      error_y: undefined, hovertemplate: `θ${dim}=%{x:.3f}: mean %{y:.3g}<extra></extra>` });
-    data.push({ type: "scatter", mode: "lines", x: [...x, ...x.slice().reverse()],
+    const visible = !lengthscales || shown.has(dim) ? true : "legendonly";
+    data.push({ type: "scatter", mode: "lines", name: `θ${dim}`, x, y: mean, legendgroup: `d${dim}`, visible,
+      hovertemplate: `θ${dim}=%{x:.3f}: mean %{y:.3g}<extra></extra>` });
+    data.push({ type: "scatter", mode: "lines", visible, x: [...x, ...x.slice().reverse()],
       y: [...mean.map((m, j) => m + 2 * std[j]), ...mean.map((m, j) => m - 2 * std[j]).reverse()],
       fill: "toself", opacity: 0.12, line: { width: 0 }, showlegend: false, legendgroup: `d${dim}`, hoverinfo: "skip" });
   });
-  draw(node, data, { title: { text: "posterior mean ± 2 std along each θ, through the best trial", font: { size: 13 } },
+  draw(node, data, { title: { text: "posterior mean ± 2 std along θ, through the best trial (click the legend for more)", font: { size: 12 } },
     xaxis: { title: { text: "θ value" }, range: [0, 1] }, yaxis: { title: { text: "predicted objective" } },
     legend: { font: { size: 10 } }, shapes: [] , meta: incumbent });
 }
