@@ -227,13 +227,13 @@ def render(
         "Warm `RolloutPool` (worker processes started and models built before timing).",
         "",
         "| preset | raw loop, 1 core | rollout, 1 worker | rollout, 2 workers | 2 / 1 | "
-        "1 worker / raw |",
-        "|---|---|---|---|---|---|",
+        "1 worker / raw | 2 workers / raw |",
+        "|---|---|---|---|---|---|---|",
     ]
     for t in through:
         lines.append(
             f"| {t.preset} | {t.raw_eps_1:.2f} | {t.eps_1:.2f} | {t.eps_2:.2f} | "
-            f"{t.scaling:.2f}× | {t.eps_1 / t.raw_eps_1:.2f} |"
+            f"{t.scaling:.2f}× | {t.eps_1 / t.raw_eps_1:.2f} | {t.eps_2 / t.raw_eps_1:.2f} |"
         )
     lines += [
         "",

@@ -298,6 +298,8 @@ def rollout(
 
     Row t of the schedule is commanded for 5 s / H from t·5/H; the arm starts at rest, straight,
     with all chamber pressures zero. Deterministic: the same inputs give bit-identical results.
+    The trajectory is sampled every round(1 / (record_hz · timestep)) physics steps (at least
+    one), t = 0 included; the objective does not depend on ``record_hz``.
 
     Raises:
         ValueError: unknown task/preset, a bad schedule (shape, non-finite, outside
