@@ -29,7 +29,7 @@ from app.policy import Policy
 from app.sim import PRESETS, RolloutPool, rollout, rollout_batch
 from app.sim.model import effective_params
 from app.sim.presets import get_preset
-from app.sim.rollout import _cached_model
+from app.sim.rollout import compiled_model
 
 TASK = "hammer"
 # The issue's numbers on the team's 2-core machine: raw reference loop ≈ 0.35 s, the published
@@ -101,7 +101,7 @@ def _raw_loop(model: mujoco.MjModel, schedule: np.ndarray) -> tuple[float, float
 def bench_speed(preset: str, repeats: int, seed: int) -> SpeedRow:
     """One-core cost of a hammer episode: rollout vs raw mj_step loop, alternating."""
     p = get_preset(preset)
-    model = _cached_model(TASK, p, effective_params(p, None))
+    model = compiled_model(TASK, p, effective_params(p, None))
     scheds, _ = _schedules(repeats, seed, TASK)
     _raw_loop(model, scheds[0])
     rollout(TASK, scheds[0], preset=p)
@@ -139,7 +139,7 @@ def bench_throughput(preset: str, episodes: int, seed: int) -> ThroughputRow:
     every run lasts about as long and the last, unpaired episode weighs little.
     """
     p = get_preset(preset)
-    model = _cached_model(TASK, p, effective_params(p, None))
+    model = compiled_model(TASK, p, effective_params(p, None))
     scale = max(1, round(p.timestep_s / get_preset("reference").timestep_s))
     scheds, _ = _schedules(2 * (episodes * scale // 2), seed, TASK)
     t0 = time.perf_counter()

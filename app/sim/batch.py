@@ -23,9 +23,9 @@ def _init_worker(
     _WORKER.update(task=task, preset=preset, params=params, kwargs=kwargs)
     # Build (and memoise) the model once per process, before the first episode.
     from app.sim.model import effective_params
-    from app.sim.rollout import _cached_model
+    from app.sim.rollout import compiled_model
 
-    _cached_model(task, preset, effective_params(preset, params))
+    compiled_model(task, preset, effective_params(preset, params))
 
 
 def _run_one(item: tuple[int, np.ndarray, int | None]) -> RolloutResult:

@@ -179,8 +179,8 @@ class RolloutResult:
 
 
 @functools.lru_cache(maxsize=16)
-def _cached_model(task: str, preset: Preset, params: ArmParams) -> mujoco.MjModel:
-    # Compiled models are memoised per process; rollouts never modify them.
+def compiled_model(task: str, preset: Preset, params: ArmParams) -> mujoco.MjModel:
+    """The model a rollout uses, compiled once per process (memoised; never modify it)."""
     return build_model(task, preset, params)
 
 
@@ -311,7 +311,7 @@ def rollout(
     schedule, release = _check_inputs(task, pressure_schedule_pa, release_step, params)
     if not (isinstance(record_hz, int | float) and math.isfinite(record_hz) and record_hz > 0):
         raise ValueError(f"record_hz must be a positive number, got {record_hz!r}")
-    model = _cached_model(task, p, params)
+    model = compiled_model(task, p, params)
     t0 = time.perf_counter()
     out = _simulate(model, task, p, params, schedule, release, float(record_hz), record_qpos)
     out.wall_s = time.perf_counter() - t0
