@@ -387,8 +387,8 @@ def _simulate(
         obj_pos = obj_vel = np.zeros((n_pts, 3))
     plate = sensors[:, lay.plate] if lay.plate >= 0 else np.zeros(n_pts)
 
-    # The release at the very end of the last step changes nothing within the episode.
-    for arr, what in ((qpos, "positions"), (tip_vel, "tip velocity"), (obj_pos, "object")):
+    # (A release at the end of the last step would change nothing within the episode.)
+    for arr, what in ((qpos, "positions"), (sensors, "sensor readings"), (act, "pressures")):
         bad = ~np.isfinite(arr).all(axis=1)
         if bad.any():
             raise _diverged(task, name, points[int(np.argmax(bad))] * dt, f"non-finite {what}")
