@@ -290,8 +290,9 @@ class BayesOpt(Optimizer):
         """Posterior mean (n,) and std (n,) of J at θ (n, dim), in objective units."""
         th = self._check_theta(theta)
         x = torch.as_tensor(self._features(th), dtype=DTYPE)
+        model = self.model()
         with torch.no_grad():
-            post = self.model().posterior(x)
+            post = model.posterior(x)
             mean = post.mean.squeeze(-1).numpy().copy()
             std = post.variance.clamp_min(0).sqrt().squeeze(-1).numpy().copy()
         return mean, std

@@ -23,8 +23,8 @@ import numpy as np
 from app.optim import METHODS, NEEDS_LEVELS, Observation, SettingsError, make_optimizer
 
 TASKS = ("throw", "hammer", "tip_speed")
-# Rough cost per trial, cheapest first: a sweep runs cheap methods (and larger P) first, so an
-# interrupted sweep still leaves complete rows for them.
+# Rough cost per trial, cheapest first: a sweep runs larger P first, cheap methods first within
+# a P, so an interrupted sweep still leaves complete rows for them.
 _COST_RANK = {
     "random": 0, "cem": 0, "cmaes": 0, "optuna-tpe": 1, "bo-lei": 2, "bo-handful": 3,
     "optuna-gp": 4, "bo-ucb": 5, "bo-lei-default": 6,
@@ -194,9 +194,13 @@ def run_one(
     if out is not None:
         run_dir(out).mkdir(parents=True, exist_ok=True)
         part = run_dir(out) / f"{spec.key}.part.csv"
-        if part.exists():
-            rows = read_run(part)[: spec.budget]
+        shorter = run_dir(out) / f"{spec.key}.csv"  # a finished run with a smaller budget
+        start = part if part.exists() else shorter if shorter.exists() else None
+        if start is not None:
+            rows = read_run(start)[: spec.budget]
             opt.observe_many(Observation(tuple(r["theta"]), r["objective"]) for r in rows)
+            if start == shorter and rows:
+                write_part(part, rows)
     fh = None
     try:
         if part is not None:
@@ -231,6 +235,16 @@ def run_one(
     if out is not None:
         write_run(spec, out, rows)
     return rows
+
+
+def write_part(path: Path, rows: list[dict[str, Any]]) -> None:
+    """Start a part file holding ``rows`` (resuming a longer run from a shorter finished one)."""
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(_RUN_COLUMNS)
+        for r in rows:
+            theta = json.dumps(r["theta"])
+            w.writerow([r["trial"], repr(float(r["objective"])), f"{r['wall_s']:.4f}", theta])
 
 
 def write_run(spec: RunSpec, out: Path, rows: list[dict[str, Any]]) -> None:
@@ -476,7 +490,7 @@ def run_sweep(
             todo.append(s)
         else:
             results[s] = rows
-    todo.sort(key=lambda s: (_COST_RANK.get(s.method, 9), -s.levels))
+    todo.sort(key=lambda s: (-s.levels, _COST_RANK.get(s.method, 9)))
     n_workers = max(1, workers or os.cpu_count() or 1)
     total_trials = sum(s.budget for s in specs)
     bar_runs = tqdm(total=len(specs), desc="runs", unit="run", disable=not progress, position=0)

@@ -1,0 +1,227 @@
+"""BayesOpt behind the ask/tell interface: model presets, acquisitions, purity, SEM, pending."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from botorch.acquisition.analytic import UpperConfidenceBound
+from botorch.test_functions import Hartmann
+from gpytorch.kernels import MaternKernel, ScaleKernel
+from gpytorch.likelihoods import FixedNoiseGaussianLikelihood
+
+from app.optim import METHODS, BayesOpt, Observation, SettingsError, make_optimizer
+from app.optim.bo import LevelSpace
+from app.policy import Policy
+
+FAST = {"num_restarts": 2, "raw_samples": 64}
+
+
+def bumpy(theta: np.ndarray) -> float:
+    """A cheap smooth test function on [0,1]^D with its maximum near θ = 0.3."""
+    th = np.asarray(theta)
+    return float(np.exp(-8.0 * np.sum((th - 0.3) ** 2)) + 0.1 * np.sin(5.0 * th.sum()))
+
+
+def filled(method: str, dim: int, n: int, seed: int = 0, **settings) -> BayesOpt:
+    """An optimiser holding n observations of ``bumpy`` at random points (no GP fits yet)."""
+    opt = make_optimizer(method, dim, seed=seed, **settings)
+    x = np.random.default_rng(seed).random((n, dim))
+    opt.observe(x, [bumpy(v) for v in x])
+    return opt
+
+
+def live(method: str, dim: int, n: int, seed: int = 0, **settings) -> BayesOpt:
+    """An optimiser that suggested and observed n points itself."""
+    opt = make_optimizer(method, dim, seed=seed, **settings)
+    for _ in range(n):
+        x = opt.suggest(1)[0]
+        opt.observe(x, bumpy(x))
+    return opt
+
+
+@pytest.mark.slow
+def test_bo_beats_random_on_hartmann6_within_30_evaluations():
+    f = Hartmann(dim=6, negate=True)  # maximum 3.32237
+    best = {"bo-lei": [], "random": []}
+    for seed in range(3):
+        for method in best:
+            opt = make_optimizer(method, 6, seed=seed, **(FAST if method == "bo-lei" else {}))
+            ys = []
+            for _ in range(30):
+                x = opt.suggest(1)[0]
+                y = float(f(torch.as_tensor(x)))
+                opt.observe(x, y)
+                ys.append(y)
+            best[method].append(max(ys))
+    bo, rnd = np.array(best["bo-lei"]), np.array(best["random"])
+    assert (bo > rnd).all(), best
+    assert bo.mean() > rnd.mean() + 0.5, best
+
+
+def test_initial_design_is_d_plus_1_sobol_points_then_the_gp():
+    opt = make_optimizer("bo-lei", 3, seed=5, **FAST)
+    xs = []
+    for _ in range(4):
+        x = opt.suggest(1)[0]
+        xs.append(x)
+        opt.observe(x, bumpy(x))
+    sobol = torch.quasirandom.SobolEngine(3, scramble=True, seed=5).draw(4, dtype=torch.float64)
+    np.testing.assert_array_equal(np.array(xs), sobol.numpy())
+    assert opt._model is None  # no GP was needed for the Sobol phase
+    opt.suggest(1)
+    assert opt._model is not None and opt._model_n == 4
+
+
+def test_ucb_uses_beta_equal_kappa_so_value_is_mean_plus_sqrt_kappa_sigma():
+    opt = filled("bo-ucb", 2, 8, kappa=0.9, **FAST)
+    acq = opt._acquisition(opt.model(), None, 1, seed=0)
+    assert isinstance(acq, UpperConfidenceBound)
+    assert float(acq.beta) == pytest.approx(0.9)
+    x = np.array([[0.2, 0.7], [0.9, 0.1]])
+    mean, std = opt.predict(x)
+    with torch.no_grad():
+        ucb = acq(torch.as_tensor(x).unsqueeze(-2)).numpy()
+    np.testing.assert_allclose(ucb, mean + math.sqrt(0.9) * std, rtol=1e-6)
+
+
+@pytest.mark.parametrize("method", ["bo-lei", "bo-ucb"])
+def test_rebuilding_from_observations_gives_the_live_suggestion(method):
+    opt = live(method, 3, 6, seed=3, n_initial=5, **FAST)
+    rebuilt = make_optimizer(method, 3, seed=3, n_initial=5, **FAST)
+    rebuilt.observe_many(opt.observations)
+    np.testing.assert_array_equal(opt.suggest(1), rebuilt.suggest(1))
+    pending = np.array([[0.1, 0.2, 0.3]])
+    np.testing.assert_array_equal(
+        opt.suggest(2, pending=pending), rebuilt.suggest(2, pending=pending)
+    )
+
+
+def test_a_pending_point_is_not_suggested_again():
+    # Sobol phase: the next design point, not the pending one.
+    opt = make_optimizer("bo-lei", 3, seed=1, **FAST)
+    first = opt.suggest(1)
+    second = opt.suggest(1, pending=first)
+    assert np.abs(first - second).max() > 1e-3
+    # GP phase: qLogNEI with the pending point fantasised.
+    opt = filled("bo-lei", 3, 8, seed=1, **FAST)
+    x1 = opt.suggest(1)
+    x2 = opt.suggest(1, pending=x1)
+    assert np.linalg.norm(x1 - x2) > 0.05
+    batch = opt.suggest(3, pending=x1)
+    assert np.linalg.norm(batch - x1, axis=1).min() > 1e-3
+    assert len({tuple(np.round(b, 6)) for b in batch}) == 3
+
+
+def test_sem_reaches_the_gp_as_a_fixed_noise_level():
+    opt = make_optimizer("bo-lei", 2, seed=0, **FAST)
+    rng = np.random.default_rng(0)
+    x = rng.random((6, 2))
+    y = np.array([bumpy(v) for v in x])
+    sem = np.array([0.01, 0.02, 0.05, 0.1, 0.2, 0.3])
+    opt.observe(x, y, sem=sem)
+    model = opt.model()
+    assert isinstance(model.likelihood, FixedNoiseGaussianLikelihood)
+    stdv = float(model.outcome_transform.stdvs.squeeze())
+    noise = model.likelihood.noise.detach().squeeze().numpy() * stdv**2
+    np.testing.assert_allclose(noise, sem**2, rtol=1e-6)
+    # With SEMs the suggestion uses the noisy acquisition and is still in the box.
+    out = opt.suggest(1)
+    assert out.shape == (1, 2) and (out >= 0).all() and (out <= 1).all()
+
+
+def test_paper_preset_is_matern52_with_the_older_gamma_priors():
+    opt = filled("bo-lei", 4, 6, **FAST)
+    covar = opt.model().covar_module
+    assert isinstance(covar, ScaleKernel) and isinstance(covar.base_kernel, MaternKernel)
+    assert covar.base_kernel.nu == 2.5 and covar.base_kernel.ard_num_dims == 4
+    ls_prior = covar.base_kernel.lengthscale_prior
+    assert (float(ls_prior.concentration), float(ls_prior.rate)) == pytest.approx((3.0, 6.0))
+    os_prior = covar.outputscale_prior
+    assert (float(os_prior.concentration), float(os_prior.rate)) == pytest.approx((2.0, 0.15))
+    noise_prior = opt.model().likelihood.noise_covar.noise_prior
+    assert (float(noise_prior.concentration), float(noise_prior.rate)) == pytest.approx((1.1, 0.05))
+    assert opt.lengthscales().shape == (4,)
+    default = filled("bo-lei-default", 4, 6, **FAST)
+    assert not isinstance(default.model().covar_module, ScaleKernel)  # today's RBF default
+
+
+def test_predict_is_in_objective_units():
+    opt = filled("bo-lei", 2, 10, **FAST)
+    x, y, _ = opt.train_data()
+    opt2 = make_optimizer("bo-lei", 2, seed=0, **FAST)
+    opt2.observe(x, 1000.0 + 50.0 * y)
+    mean, std = opt2.predict(x)
+    assert mean.shape == std.shape == (10,)
+    np.testing.assert_allclose(mean, 1000.0 + 50.0 * y, atol=5.0)
+
+
+@pytest.mark.parametrize(
+    ("settings", "match"),
+    [
+        ({"acquisition": "pi"}, "acquisition"),
+        ({"kappa": -1.0}, "kappa"),
+        ({"model_preset": "fancy"}, "model_preset"),
+        ({"n_initial": 1}, "n_initial"),
+        ({"num_restarts": 0}, "num_restarts"),
+        ({"bogus": 1}, "bogus"),
+        ({"space": "levels"}, "levels"),
+    ],
+)
+def test_bad_settings_raise_a_clear_value_error(settings, match):
+    with pytest.raises(ValueError, match=match):
+        make_optimizer("bo-lei", 3, seed=0, **settings)
+
+
+def test_unknown_method_and_bad_observations_are_refused():
+    with pytest.raises(SettingsError, match="unknown method 'nope'"):
+        make_optimizer("nope", 3, seed=0)
+    with pytest.raises(ValueError, match="cem"):
+        make_optimizer("cem", 3, seed=0, kappa=1.0)
+    opt = make_optimizer("bo-lei", 3, seed=0)
+    with pytest.raises(ValueError, match="outside"):
+        opt.observe([0.1, 1.5, 0.2], 1.0)
+    with pytest.raises(ValueError, match="finite"):
+        opt.observe([0.1, 0.5, 0.2], float("nan"))
+    with pytest.raises(ValueError, match="SEM"):
+        opt.observe([0.1, 0.5, 0.2], 1.0, sem=-1.0)
+    with pytest.raises(ValueError, match="shape"):
+        opt.observe([0.1, 0.5], 1.0)
+    assert opt.n_observed == 0
+    assert set(METHODS) >= {"bo-lei", "bo-ucb", "cem", "random", "optuna-tpe", "optuna-gp"}
+
+
+@pytest.mark.parametrize(("levels", "with_release"), [(2, False), (5, True), (3, True)])
+def test_level_space_matches_the_policy_decoding(levels, with_release):
+    policy = Policy(levels=levels, with_release=with_release)
+    space = LevelSpace(levels, 10, with_release)
+    rng = np.random.default_rng(levels)
+    theta = rng.random((20, policy.dim))
+    feats = space.to_features(theta)
+    for th, f in zip(theta, feats, strict=True):
+        d = policy.decode(th)
+        np.testing.assert_array_equal(np.rint(f[:60] * (levels - 1)), d.level_indices.ravel())
+        if with_release:
+            assert round(f[60] * 9) + 1 == d.release_step
+    back = space.to_theta(feats)
+    for th, b in zip(theta, back, strict=True):
+        d1, d2 = policy.decode(th), policy.decode(b)
+        np.testing.assert_array_equal(d1.action_indices, d2.action_indices)
+        assert d1.release_step == d2.release_step
+
+
+def test_handful_bo_suggests_unseen_grid_points_and_rebuilds_identically():
+    settings = {"levels": 2, "raw_samples": 64, "num_restarts": 2, "fit_maxiter": 20}
+    opt = live("bo-handful", 11, 13, seed=2, **settings)
+    space = LevelSpace(2, 10, True)
+    seen = {tuple(r) for r in space.to_features(opt.train_data()[0])}
+    x = opt.suggest(1)
+    assert tuple(space.to_features(x)[0]) not in seen
+    rebuilt = make_optimizer("bo-handful", 11, seed=2, **settings)
+    rebuilt.observe_many([Observation(o.theta, o.value) for o in opt.observations])
+    np.testing.assert_array_equal(x, rebuilt.suggest(1))
+    x2 = opt.suggest(1, pending=x)
+    assert tuple(space.to_features(x2)[0]) != tuple(space.to_features(x)[0])
+    assert opt.lengthscales().shape == (11,)
