@@ -63,6 +63,14 @@ class SimulationDiverged(RuntimeError):
         self.preset = preset
         self.time_s = time_s
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        # picklable, so it crosses from a pool's worker process intact
+        return (_rebuild_diverged, (str(self), self.task, self.preset, self.time_s))
+
+
+def _rebuild_diverged(message: str, task: str, preset: str, time_s: float) -> SimulationDiverged:
+    return SimulationDiverged(message, task=task, preset=preset, time_s=time_s)
+
 
 _TRAJ_FIELDS = (
     "time_s",

@@ -3,12 +3,21 @@
 from __future__ import annotations
 
 import json
+import pickle
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from app.policy import Policy
-from app.sim import RolloutResult, Trajectory, rollout, rollout_batch
+from app.sim import (
+    ArmParams,
+    RolloutResult,
+    SimulationDiverged,
+    Trajectory,
+    rollout,
+    rollout_batch,
+)
 
 P_MAX = 40 * 6895.0
 
@@ -177,3 +186,19 @@ def test_batch_refuses_bad_input_before_running() -> None:
     with pytest.raises(ValueError, match="3 schedules but 2 release steps"):
         rollout_batch("throw", np.zeros((3, 10, 12)), release_steps=[1, 2], preset="fast")
     assert rollout_batch("tip_speed", [], preset="fast") == []
+
+
+def test_diverged_episode_in_a_pool_names_its_index() -> None:
+    """A blow-up inside a worker process comes back as SimulationDiverged, index included."""
+    stiff = tuple(
+        replace(jp, stiffness_nm_rad=1e6, damping_nms_rad=0.0) for jp in ArmParams().joints
+    )
+    # without gravity, episode 0 (no pressure) stays exactly at rest; episode 1 blows up
+    params = replace(ArmParams(), joints=stiff, gravity_m_s2=(0.0, 0.0, 0.0))
+    schedules = np.zeros((2, 10, 12))
+    schedules[1, :, 0] = P_MAX
+    with pytest.raises(SimulationDiverged, match=r"episode 1: simulation diverged") as info:
+        rollout_batch("tip_speed", schedules, preset="fast", params=params, n_workers=2)
+    assert info.value.task == "tip_speed" and info.value.time_s > 0
+    again = pickle.loads(pickle.dumps(info.value))
+    assert (str(again), again.preset) == (str(info.value), "fast")
