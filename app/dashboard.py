@@ -218,7 +218,7 @@ def mount_dashboard(app: FastAPI, settings: Any) -> None:
                     primary, trial = await _trial_replay(c, auth, body.trial_id, "this trial")
                 overlay = None
                 if body.overlay_trial_id is not None:
-                    overlay, _ = await _trial_replay(c, auth, body.overlay_trial_id, "best so far")
+                    overlay, _ = await _trial_replay(c, auth, body.overlay_trial_id, "overlay")
             key = await asyncio.to_thread(viz.add_view, primary, overlay)
         except (ApiRefused, ValueError, KeyError) as exc:
             return _view_error(exc)

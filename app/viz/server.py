@@ -232,6 +232,11 @@ class VizServer:
         with self._lock:
             return sum(1 for s in self._sessions.values() if s.view.key == key)
 
+    def playback(self, key: str) -> list[tuple[bool, float]]:
+        """(playing, time s) of each connected tab showing view ``key``."""
+        with self._lock:
+            return [(s.playing, s.t_s) for s in self._sessions.values() if s.view.key == key]
+
     @staticmethod
     def websocket_path(key: str) -> str:
         """The websocket path a tab opens to get view ``key``."""
