@@ -10,11 +10,18 @@ from typing import Any
 
 import numpy as np
 
+from app.sim.model import effective_params
 from app.sim.params import ArmParams
 from app.sim.presets import Preset, get_preset
-from app.sim.rollout import RolloutResult, SimulationDiverged, rollout
+from app.sim.rollout import (
+    RolloutResult,
+    SimulationDiverged,
+    _check_inputs,
+    compiled_model,
+    rollout,
+)
 
-_WORKER: dict[str, Any] = {}
+_WORKER: dict[str, Any] = {}  # set once per worker process by its pool's initializer
 
 
 def _init_worker(
@@ -22,9 +29,6 @@ def _init_worker(
 ) -> None:
     _WORKER.update(task=task, preset=preset, params=params, kwargs=kwargs)
     # Build (and memoise) the model once per process, before the first episode.
-    from app.sim.model import effective_params
-    from app.sim.rollout import compiled_model
-
     compiled_model(task, preset, effective_params(preset, params))
 
 
@@ -142,9 +146,6 @@ def rollout_batch(
     # Validate every input here, before any process starts (one clear error, nothing half-run).
     for i, (s, r) in enumerate(zip(sched_list, releases, strict=True)):
         try:
-            from app.sim.model import effective_params
-            from app.sim.rollout import _check_inputs
-
             _check_inputs(task, s, r, effective_params(preset, params))
         except ValueError as exc:
             raise ValueError(f"episode {i}: {exc}") from None
