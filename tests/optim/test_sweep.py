@@ -1,0 +1,149 @@
+"""The sweep behind `handful bench optim`: formats, caching/resume, backends, bad arguments."""
+
+from __future__ import annotations
+
+import csv
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.optim import sweep
+
+HANDFUL = shutil.which("handful") or str(Path(sys.executable).with_name("handful"))
+
+
+def handful(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    return subprocess.run(
+        [HANDFUL, *args], cwd=cwd, capture_output=True, text=True, timeout=300, env=env
+    )
+
+
+def test_cli_sweep_writes_results_summary_and_curves_and_skips_cached_runs(tmp_path):
+    out = tmp_path / "sweep"
+    args = ["bench", "optim", "--task", "hammer", "--levels", "2", "--budget", "2,4"]
+    args += ["--seeds", "2", "--methods", "random,cem", "--preset", "fast"]
+    args += ["--out", str(out), "--workers", "1", "--no-progress"]
+    first = handful(*args, cwd=tmp_path)
+    assert first.returncode == 0, first.stderr
+    with open(out / "results.csv", newline="") as fh:
+        reader = csv.DictReader(fh)
+        assert tuple(reader.fieldnames) == sweep.RESULT_COLUMNS
+        rows = list(reader)
+    assert len(rows) == 2 * 2 * 4  # methods × seeds × trials
+    runs: dict[tuple[str, str], list[dict]] = {}
+    for r in rows:
+        assert r["task"] == "hammer" and r["levels"] == "2"
+        runs.setdefault((r["method"], r["seed"]), []).append(r)
+    for run_rows in runs.values():
+        assert [int(r["trial"]) for r in run_rows] == [1, 2, 3, 4]
+        obj = np.array([float(r["objective"]) for r in run_rows])
+        best = np.array([float(r["best_so_far"]) for r in run_rows])
+        np.testing.assert_allclose(best, np.maximum.accumulate(obj), rtol=1e-5)
+        assert all(float(r["wall_s"]) > 0 for r in run_rows)
+
+    summary = (out / "summary.md").read_text()
+    assert "## hammer: best objective so far, mean ± std over 2 seeds" in summary
+    assert "| Method | Trials | P=2 |" in summary
+    for method in ("random", "cem"):
+        for budget in (2, 4):
+            vals = [
+                float(r["best_so_far"])
+                for r in rows
+                if r["method"] == method and int(r["trial"]) == budget
+            ]
+            cell = f"{np.mean(vals):.3f} ± {np.std(vals):.3f}"
+            assert re.search(rf"\| {method} \| {budget} \| \**{re.escape(cell)}\**", summary)
+    assert (out / "curves.png").read_bytes()[:4] == b"\x89PNG"
+
+    # A second run finds every run cached and writes identical results.
+    before = {p.name: p.stat().st_mtime_ns for p in (out / "runs").iterdir()}
+    again = handful(*args, cwd=tmp_path)
+    assert again.returncode == 0, again.stderr
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "runs").iterdir()} == before
+    with open(out / "results.csv", newline="") as fh:
+        assert list(csv.DictReader(fh)) == rows
+
+
+def test_an_interrupted_or_extended_run_resumes_to_the_same_result(tmp_path):
+    spec5 = sweep.RunSpec("cem", "hammer", 2, 0, 5, "fast")
+    spec3 = sweep.RunSpec("cem", "hammer", 2, 0, 3, "fast")
+    direct = sweep.run_one(spec5, tmp_path / "a")
+    sweep.run_one(spec3, tmp_path / "b")  # a shorter finished run ...
+    extended = sweep.run_one(spec5, tmp_path / "b")  # ... extended by two trials
+    assert [r["theta"] for r in extended] == [r["theta"] for r in direct]
+    assert [r["objective"] for r in extended] == [r["objective"] for r in direct]
+    # An interrupted run: a part file with its first two trials.
+    part_dir = tmp_path / "c" / "runs"
+    part_dir.mkdir(parents=True)
+    sweep.write_part(part_dir / f"{spec5.key}.part.csv", direct[:2])
+    resumed = sweep.run_one(spec5, tmp_path / "c")
+    assert [r["objective"] for r in resumed] == [r["objective"] for r in direct]
+    assert not (part_dir / f"{spec5.key}.part.csv").exists()
+    assert len(sweep.read_run(part_dir / f"{spec5.key}.csv")) == 5
+
+
+def test_summary_marks_the_best_mean_and_reports_each_budget():
+    rows = []
+    for method, base in (("a", 1.0), ("b", 2.0)):
+        for seed in range(2):
+            spec = sweep.RunSpec(method, "throw", 5, seed, 3)
+            objs = [base + seed, base, base + 2 * seed + 0.5]
+            trial_rows = [
+                {"trial": i + 1, "objective": v, "wall_s": 0.1} for i, v in enumerate(objs)
+            ]
+            rows += sweep.result_rows(spec, trial_rows)
+    text = sweep.summary_markdown(rows, [1, 3])
+    assert "| a | 1 | 1.500 ± 0.500 |" in text
+    assert "| b | 1 | **2.500 ± 0.500** |" in text
+    assert "| b | 3 | **3.500 ± 1.000** |" in text
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--methods", "bogus"], "unknown method 'bogus'"),
+        (["--budget", "0"], "budget must be ≥ 1 trial, got 0"),
+        (["--levels", "1"], "levels (P) must be ≥ 2, got 1"),
+        (["--preset", "ultra"], "unknown --preset 'ultra'"),
+    ],
+)
+def test_bad_arguments_exit_nonzero_with_one_clear_line(tmp_path, args, message):
+    res = handful("bench", "optim", *args, "--out", str(tmp_path / "o"), cwd=tmp_path)
+    assert res.returncode != 0
+    lines = [ln for ln in res.stderr.strip().splitlines() if ln.strip()]
+    assert len(lines) == 1 and message in lines[0], res.stderr
+    assert not (tmp_path / "o" / "results.csv").exists()
+
+
+@pytest.mark.slow
+def test_a_tiny_sweep_on_local_ray_agrees_with_the_local_backend(tmp_path):
+    import ray
+
+    specs = sweep.make_specs(
+        methods=["random", "cem"],
+        tasks=["hammer"],
+        levels=[2],
+        budgets=[3],
+        seeds=2,
+        preset="fast",
+    )
+    local = sweep.run_sweep(specs, tmp_path / "local", workers=2, progress=False)
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        remote = sweep.run_sweep(specs, tmp_path / "ray", backend="ray", progress=False)
+    finally:
+        ray.shutdown()
+    for s in specs:
+        assert [r["objective"] for r in remote[s]] == [r["objective"] for r in local[s]]
+        assert [r["theta"] for r in remote[s]] == [r["theta"] for r in local[s]]
+    a = sweep.write_outputs(tmp_path / "local", specs, local, [3])
+    b = sweep.write_outputs(tmp_path / "ray", specs, remote, [3])
+    strip = [{k: v for k, v in r.items() if k != "wall_s"} for r in a]
+    assert strip == [{k: v for k, v in r.items() if k != "wall_s"} for r in b]
