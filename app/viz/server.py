@@ -162,6 +162,8 @@ class VizServer:
             return
         server = viser.ViserServer(host=self.host, port=self._requested_port, verbose=False)
         server.scene.set_up_direction("+z")
+        # No share button: it opens a public tunnel through a third-party host.
+        server.gui.configure_theme(show_share_button=False, show_logo=False)
         server.on_client_connect(self._on_connect)
         server.on_client_disconnect(self._on_disconnect)
         self._server = server

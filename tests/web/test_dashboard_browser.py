@@ -24,10 +24,12 @@ PASSWORD = "correct horse battery"  # the shared fixtures' password for every us
 pytestmark = pytest.mark.browser
 
 
-def login(page: Any, server: Any, username: str) -> None:
+def login(page: Any, server: Any, username: str, screenshot: Path | None = None) -> None:
     """Log in through the login form; lands on the experiments list."""
     page.goto(f"{server.url}/experiments")
     page.wait_for_url(re.compile(r"/login"))
+    if screenshot is not None:
+        page.screenshot(path=str(screenshot))
     page.fill("#username", username)
     page.fill("#password", PASSWORD)
     page.click("#login-form button[type=submit]")
@@ -74,7 +76,12 @@ def test_operator_loop_on_the_standin_robot(
     worker runs it, enter two tape measurements; table and plot show mean ± SEM."""
     server = dashboard_server
     api = server.client("operator")
-    login(page, server, "operator")
+    page.goto(f"{server.url}/login")
+    page.fill("#username", "operator")
+    page.fill("#password", "wrong password")
+    page.click("#login-form button[type=submit]")
+    page.locator("#login-error").filter(has_text="wrong username or password").wait_for()
+    login(page, server, "operator", screenshot=screenshots / "login.png")
     page.screenshot(path=str(screenshots / "experiments_empty.png"))
 
     # 2. create a hardware experiment (throw: the cube's distance is measured by tape, in m)
@@ -187,7 +194,13 @@ def test_operator_loop_on_the_standin_robot(
     )
     assert plotted["y"] == pytest.approx([measured["objective"]])
     assert plotted["e"] == pytest.approx([sem])
+    page.click("#audit-box summary")
+    page.locator("#exp-audit-table td", has_text="trial.confirm").first.wait_for()
     page.screenshot(path=str(screenshots / "experiment_measured.png"), full_page=True)
+    with page.expect_download() as download:
+        page.click("#export-csv")
+    csv_lines = Path(download.value.path()).read_text().strip().splitlines()
+    assert len(csv_lines) == 2 and "objective" in csv_lines[0]
 
     # the trial page: full record, trajectory plots, and a 3D replay
     page.goto(f"{server.url}/trials/{trial['id']}")

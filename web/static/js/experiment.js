@@ -70,6 +70,7 @@ function renderHeader() {
   ].join(" · ");
   if (document.activeElement !== $("#exp-status-select")) $("#exp-status-select").value = e.status;
   if (document.activeElement !== $("#exp-budget-input")) $("#exp-budget-input").value = e.budget ?? "";
+  if (document.activeElement !== $("#exp-notes")) $("#exp-notes").value = e.notes ?? "";
 }
 
 function renderTable() {
@@ -133,6 +134,20 @@ async function renderModel() {
   }
 }
 
+async function renderAudit() {
+  if (!$("#audit-box").open) return;
+  try {
+    const rows = await api("GET", `/api/experiments/${experimentId}/audit?limit=300`);
+    $("#exp-audit-table tbody").replaceChildren(...rows.map((a) => el("tr", {},
+      el("td", {}, fmtTime(a.at)), el("td", {}, a.actor), el("td", {}, a.action),
+      el("td", {}, a.trial_id ? el("a", { href: `/trials/${a.trial_id}` }, a.trial_id) : "—"),
+      el("td", {}, a.before || a.after ? `${a.before ?? "—"} → ${a.after ?? "—"}` : ""),
+      el("td", {}, a.detail ? JSON.stringify(a.detail) : ""))));
+  } catch (err) {
+    $("#exp-audit-table tbody").replaceChildren(el("tr", {}, el("td", { colspan: 6, class: "error" }, `Audit log not shown: ${err.message}`)));
+  }
+}
+
 async function refresh(force = false) {
   try {
     const [e, t] = await Promise.all([
@@ -149,6 +164,7 @@ async function refresh(force = false) {
     renderNext();
     applyRole();
     renderModel();
+    renderAudit();
     showError("#exp-error", null);
   } catch (err) {
     showError("#exp-error", err);
@@ -176,6 +192,7 @@ async function poll() {
 }
 
 function wireActions() {
+  $("#audit-box").addEventListener("toggle", renderAudit);
   $("#export-csv").onclick = () => download(`/api/experiments/${experimentId}/export?format=csv`, `experiment-${experimentId}.csv`).catch((err) => showError("#exp-error", err));
   $("#export-json").onclick = () => download(`/api/experiments/${experimentId}/export?format=json`, `experiment-${experimentId}.json`).catch((err) => showError("#exp-error", err));
   if (!canWrite()) return;
@@ -183,7 +200,9 @@ function wireActions() {
     ev.target.disabled = true;
     showError("#exp-error", null);
     try {
-      const answer = await api("POST", `/api/experiments/${experimentId}/suggest`, { body: { n: 1 } });
+      const n = Number($("#suggest-n").value);
+      if (!Number.isInteger(n) || n < 1 || n > 100) { showError("#exp-error", "n must be a whole number from 1 to 100."); return; }
+      const answer = await api("POST", `/api/experiments/${experimentId}/suggest`, { body: { n } });
       const made = listOf(answer);
       say(made.length ? `Suggested trial ${made.map((t) => t.index).join(", ")}.` : "No new trial suggested.");
       await refresh(true);
@@ -212,6 +231,13 @@ function wireActions() {
       say(`Imported ${answer.imported ?? answer.count ?? (Array.isArray(answer) ? answer.length : "the")} observations.`);
       $("#import-form").hidden = true;
       await refresh(true);
+    } catch (err) { showError("#exp-error", err); }
+  };
+  $("#notes-save").onclick = async () => {
+    try {
+      await api("PATCH", `/api/experiments/${experimentId}`, { body: { notes: $("#exp-notes").value } });
+      say("Notes saved.");
+      await refresh();
     } catch (err) { showError("#exp-error", err); }
   };
   $("#exp-save").onclick = async () => {

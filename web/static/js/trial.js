@@ -1,7 +1,7 @@
 import { api } from "./api.js";
 import { renderTrialActions } from "./actions.js";
 import { line, scheduleHeatmap } from "./plots.js";
-import { $, applyRole, badge, el, fmt, fmtDuration, fmtPm, fmtTime, requireLogin, showError } from "./ui.js";
+import { $, applyRole, download, el, fmt, fmtDuration, fmtPm, fmtTime, requireLogin, showError } from "./ui.js";
 import { openReplay } from "./viz.js";
 
 const trialId = window.HANDFUL.trialId;
@@ -79,6 +79,7 @@ async function renderTrajectory(t) {
     if (tr.tip_speed_m_s) line($("#speed-plot"), time, tr.tip_speed_m_s, { title: "tip speed", ytitle: "m/s" });
     if (tr.tip_pos_m) line($("#height-plot"), time, tr.tip_pos_m.map((p) => p[2]), { title: "tip height", ytitle: "m" });
     if (tr.plate_force_n) line($("#force-plot"), time, tr.plate_force_n, { title: "plate force", ytitle: "N" });
+    else $("#force-plot").replaceChildren(el("p", { class: "muted" }, "No plate force in this recording (only the hammer task has a force plate; a tracker records the tip only)."));
   } catch (err) {
     note.textContent = `Trajectory not shown: ${err.message}`;
   }
@@ -98,6 +99,8 @@ async function load(force = false) {
     renderTrajectory(t);
     renderTrialActions($("#trial-actions"), t, { experiment: e, incumbentId: null, onChange: (msg) => { showError("#trial-error", null); $("#trial-summary").textContent = msg; load(true); } });
     $("#replay-button").onclick = () => openReplay(t, null);
+    $("#npz-button").hidden = !t.has_trajectory;
+    $("#npz-button").onclick = () => download(`/api/trials/${t.id}/trajectory?format=npz`, `trial-${t.id}-trajectory.npz`).catch((err) => showError("#trial-error", err));
     applyRole();
     showError("#trial-error", null);
   } catch (err) {
