@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import threading
+from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
@@ -84,20 +86,39 @@ def _trajectory_qpos(trajectory: Any) -> tuple[np.ndarray, np.ndarray] | None:
     return t, q
 
 
+_ROLLOUTS: OrderedDict[str, tuple[np.ndarray, np.ndarray]] = OrderedDict()
+_ROLLOUTS_KEPT = 16
+_ROLLOUT_LOCK = threading.Lock()
+# At most two 3D rollouts at once, whoever asks: a tab reload or a busy page cannot pile
+# simulator runs onto the server.
+_ROLLOUT_SLOTS = threading.BoundedSemaphore(2)
+
+
 def _simulate_qpos(
     task: str, preset: str, schedule: Any, release_step: int | None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """A sim rollout of the schedule with qpos recorded: (time_s (T,), qpos (T, nq))."""
+    """A sim rollout of the schedule with qpos recorded: (time_s (T,), qpos (T, nq)).
+
+    The simulator is deterministic, so results are kept (newest 16) by task, preset and the
+    schedule's hash.
+    """
+    from app.policy import schedule_hash
     from app.sim import rollout
 
-    result = rollout(
-        task,
-        np.asarray(schedule, dtype=np.float64),
-        release_step=release_step,
-        preset=preset,
-        record_qpos=True,
-    )
-    return np.asarray(result.trajectory.time_s), np.asarray(result.trajectory.qpos)
+    sched = np.asarray(schedule, dtype=np.float64)
+    key = f"{task}/{preset}/{schedule_hash(sched, release_step)}"
+    with _ROLLOUT_LOCK:
+        if key in _ROLLOUTS:
+            _ROLLOUTS.move_to_end(key)
+            return _ROLLOUTS[key]
+    with _ROLLOUT_SLOTS:
+        result = rollout(task, sched, release_step=release_step, preset=preset, record_qpos=True)
+    out = (np.asarray(result.trajectory.time_s), np.asarray(result.trajectory.qpos))
+    with _ROLLOUT_LOCK:
+        _ROLLOUTS[key] = out
+        while len(_ROLLOUTS) > _ROLLOUTS_KEPT:
+            _ROLLOUTS.popitem(last=False)
+    return out
 
 
 async def _trial_replay(
