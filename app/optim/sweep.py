@@ -358,15 +358,15 @@ def summary_markdown(
     rows: Sequence[dict[str, Any]], budgets: Sequence[int], *, title: str = "Optimiser sweep"
 ) -> str:
     """The paper's table layout: per task, rows (method, trials), columns P; mean ± std (ddof 0)
-    over seeds of the best objective so far. The best mean in each column is bold."""
+    over seeds of the best objective so far. The best mean in each column is bold; a cell with
+    fewer seeds than the table's says so (n=k)."""
     table = best_at(rows, budgets)
     tasks = sorted({k[0] for k in table}, key=lambda t: TASKS.index(t) if t in TASKS else 99)
     lines = [f"# {title}", ""]
     for task in tasks:
         ps = sorted({k[2] for k in table if k[0] == task})
         methods = [m for m in dict.fromkeys(r["method"] for r in rows if r["task"] == task)]
-        n_seeds = {len(v) for k, v in table.items() if k[0] == task}
-        seeds = "/".join(str(s) for s in sorted(n_seeds))
+        seeds = max(len(v) for k, v in table.items() if k[0] == task)
         lines += [
             f"## {task}: best objective so far, mean ± std over {seeds} seeds",
             "",
@@ -391,7 +391,8 @@ def summary_markdown(
                         continue
                     mean, std = float(np.mean(v)), float(np.std(v))
                     cell = f"{mean:.3f} ± {std:.3f}"
-                    cells.append(f"**{cell}**" if mean == best_mean[(p, b)] else cell)
+                    cell = f"**{cell}**" if mean == best_mean[(p, b)] else cell
+                    cells.append(cell if len(v) == seeds else f"{cell} (n={len(v)})")
                 if any(c != "–" for c in cells):
                     lines.append(f"| {m} | {b} | " + " | ".join(cells) + " |")
         lines.append("")
