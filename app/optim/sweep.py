@@ -143,14 +143,18 @@ def read_run(path: Path) -> list[dict[str, Any]]:
     rows = []
     with open(path, newline="") as fh:
         for r in csv.DictReader(fh):
-            rows.append(
-                {
+            try:
+                row = {
                     "trial": int(r["trial"]),
                     "objective": float(r["objective"]),
                     "wall_s": float(r["wall_s"]),
                     "theta": json.loads(r["theta"]),
                 }
-            )
+            except (TypeError, ValueError):
+                break  # a line cut short by an interruption: resume from the rows before it
+            if row["trial"] != len(rows) + 1:
+                break
+            rows.append(row)
     return rows
 
 
