@@ -147,3 +147,14 @@ def test_a_tiny_sweep_on_local_ray_agrees_with_the_local_backend(tmp_path):
     b = sweep.write_outputs(tmp_path / "ray", specs, remote, [3])
     strip = [{k: v for k, v in r.items() if k != "wall_s"} for r in a]
     assert strip == [{k: v for k, v in r.items() if k != "wall_s"} for r in b]
+
+
+def test_a_cache_line_cut_short_is_dropped_on_resume(tmp_path):
+    rows = [
+        {"trial": i + 1, "objective": float(i), "wall_s": 0.1, "theta": [0.5]} for i in range(3)
+    ]
+    path = tmp_path / "x.part.csv"
+    sweep.write_part(path, rows)
+    with open(path, "a") as fh:
+        fh.write('4,1.5,0.1,"[0.2')  # interrupted mid-write
+    assert sweep.read_run(path) == rows
