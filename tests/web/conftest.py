@@ -60,7 +60,7 @@ def page(browser: Any) -> Iterator[Any]:
     tab = context.new_page()
     errors: list[str] = []
     tab.on("pageerror", lambda exc: errors.append(str(exc)))
-    tab.set_default_timeout(30_000)
+    tab.set_default_timeout(60_000)  # a loaded 2-core CI machine renders slowly
     yield tab
     context.close()
     assert not errors, f"JavaScript errors on the page: {errors}"

@@ -43,7 +43,7 @@ def arm_pixels(png: bytes) -> int:
     return int(np.count_nonzero((r > 150) & (g < 110) & (b < 90)))
 
 
-def wait_for_drawn_arm(page: Any, timeout_s: float = 60.0) -> bytes:
+def wait_for_drawn_arm(page: Any, timeout_s: float = 150.0) -> bytes:
     """The viser canvas inside the 3D iframe, once it shows the arm; its screenshot (PNG)."""
     frame = page.frame_locator("#viz-frame")
     canvas = frame.locator("canvas").first
@@ -54,8 +54,10 @@ def wait_for_drawn_arm(page: Any, timeout_s: float = 60.0) -> bytes:
     while time.monotonic() < deadline:
         # A clip of the page, not an element shot: viser keeps resizing its canvas (adaptive
         # pixel ratio), so it is never "stable" for Playwright.
-        box = page.locator("#viz-frame").bounding_box()
-        png = page.screenshot(clip=box) if box else b""
+        # Generous: the viser client's first load (shader compiles in software GL) can hold the
+        # tab's main thread for tens of seconds on a loaded 2-core machine.
+        box = page.locator("#viz-frame").bounding_box(timeout=timeout_s * 1000)
+        png = page.screenshot(clip=box, timeout=timeout_s * 1000) if box else b""
         if png and arm_pixels(png) > 200:
             return png
         time.sleep(1.0)
