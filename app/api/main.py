@@ -78,6 +78,17 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
         app.state.db.dispose()
 
 
+def _warm_imports() -> None:
+    """Import the optimisers (torch, BoTorch) and the simulator (MuJoCo) now, at start-up,
+    so the first request that needs them does not wait many seconds for the imports."""
+    import app.optim
+
+    try:
+        import app.sim  # noqa: F401
+    except ImportError as exc:  # a hardware-only server may run without MuJoCo
+        log.warning("simulator unavailable: %s", exc)
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the app over an already-migrated database (``handful serve`` migrates first).
 
@@ -87,6 +98,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     """
     settings = settings or Settings()
     settings.artifacts_dir.mkdir(parents=True, exist_ok=True)
+    _warm_imports()
     app = FastAPI(
         title="handful",
         version=VERSION,

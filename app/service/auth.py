@@ -135,16 +135,16 @@ def login(session: Session, username: str, password: str) -> tuple[str, User]:
 def authenticate(session: Session, token: str) -> Actor:
     """The Actor a bearer token belongs to. Raises Unauthorized for an unknown/revoked token."""
     row = session.execute(
-        select(Token, User)
+        select(User.username, User.role, User.disabled, Token.revoked_at)
         .join(User, Token.user_id == User.id)
         .where(Token.token_sha256 == token_digest(token))
     ).first()
     if row is None:
         raise Unauthorized("invalid token")
-    tok, user = row
-    if tok.revoked_at is not None or user.disabled:
+    username, role, disabled, revoked_at = row
+    if revoked_at is not None or disabled:
         raise Unauthorized("token revoked or user disabled")
-    return Actor(user.username, user.role)
+    return Actor(username, role)
 
 
 def revoke_tokens(session: Session, username: str, *, actor: Actor = SYSTEM) -> int:

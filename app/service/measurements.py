@@ -90,9 +90,7 @@ def store_measurement(
         )
         for v, u, note in values
     ]
-    session.add_all(rows)
-    session.flush()
-    session.refresh(trial, attribute_names=["measurements"])
+    trial.measurements.extend(rows)  # loads the existing repeats once; inserted at next flush
     before = trial.objective
     refresh_objective(trial)
     trial.updated_at = now
@@ -108,7 +106,6 @@ def store_measurement(
         after=repr(trial.objective),
         detail={
             "source": source,
-            "measurement_ids": [r.id for r in rows],
             "values": [float(v) for v, _, _ in values],
         },
         now=now,
@@ -182,10 +179,11 @@ def add_measurements(
             scope="measurements",
             key=idempotency_key,
             request_sha256=digest,
-            summary=f"trial {trial.id}, measurements {', '.join(str(r.id) for r in rows)}",
+            summary=f"trial {trial.id}, {len(rows)} repeat(s)",
             created_by=actor.username,
         )
     )
     touch(exp)
+    detail = read_trial(session, trial.id)  # one flush (autoflush) and one commit in all
     session.commit()
-    return read_trial(session, trial.id)
+    return detail

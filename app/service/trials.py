@@ -367,8 +367,9 @@ def fail(session: Session, trial_id: int, reason: str, *, actor: Actor) -> Trial
     if was == lc.RUNNING:
         _end_lease(session, trial, "revoked", actor=actor, why=f"trial failed: {reason}")
     touch(trial.experiment)
+    out = TrialRead.build(trial)
     session.commit()
-    return TrialRead.build(trial)
+    return out
 
 
 def abandon(session: Session, trial_id: int, reason: str, *, actor: Actor) -> TrialRead:
@@ -386,8 +387,9 @@ def abandon(session: Session, trial_id: int, reason: str, *, actor: Actor) -> Tr
     if was == lc.RUNNING:
         _end_lease(session, trial, "revoked", actor=actor, why=f"trial abandoned: {reason}")
     touch(trial.experiment)
+    out = TrialRead.build(trial)
     session.commit()
-    return TrialRead.build(trial)
+    return out
 
 
 def resolve(session: Session, trial_id: int, body: ResolveIn, *, actor: Actor) -> TrialRead:
@@ -431,8 +433,9 @@ def resolve(session: Session, trial_id: int, body: ResolveIn, *, actor: Actor) -
         detail=detail,
     )
     touch(exp)
+    out = TrialRead.build(trial)
     session.commit()
-    return TrialRead.build(trial)
+    return out
 
 
 def confirm(session: Session, trial_id: int, given_hash: str, *, actor: Actor) -> TrialRead:
@@ -473,5 +476,6 @@ def confirm(session: Session, trial_id: int, given_hash: str, *, actor: Actor) -
         now=now,
     )
     touch(exp)
+    out = TrialRead.build(trial)
     session.commit()
-    return TrialRead.build(trial)
+    return out

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Literal
 
 from fastapi import APIRouter, Header
-from fastapi.responses import FileResponse
+from fastapi.responses import FileResponse, Response
 
 from app.api.deps import (
     DbDep,
@@ -15,6 +15,7 @@ from app.api.deps import (
     ReadSession,
     SettingsDep,
     WriteSession,
+    json_response,
 )
 from app.service import artifacts, measurements, runs, trials
 from app.service.schemas import (
@@ -30,24 +31,25 @@ from app.service.schemas import (
 router = APIRouter(tags=["trials"])
 
 
-@router.get("/trials/{trial_id}")
-def get_trial(trial_id: int, session: ReadSession, _: Reader) -> TrialDetail:
+@router.get("/trials/{trial_id}", response_model=TrialDetail)
+def get_trial(trial_id: int, session: ReadSession, _: Reader) -> Response:
     """A trial with its raw measurements and its audit trail."""
-    return trials.read_trial(session, trial_id)
+    return json_response(trials.read_trial(session, trial_id))
 
 
-@router.post("/trials/{trial_id}/measurements", status_code=201)
+@router.post("/trials/{trial_id}/measurements", status_code=201, response_model=TrialDetail)
 def add_measurements(
     trial_id: int,
     body: MeasurementsIn,
     session: WriteSession,
     actor: Operator,
     idempotency_key: str | None = Header(None, alias="Idempotency-Key"),
-) -> TrialDetail:
+) -> Response:
     """Record raw repeats (value, unit, note); the objective is their mean ± SEM."""
-    return measurements.add_measurements(
+    detail = measurements.add_measurements(
         session, trial_id, body, idempotency_key=idempotency_key, actor=actor
     )
+    return json_response(detail, status_code=201)
 
 
 @router.post("/trials/{trial_id}/fail")

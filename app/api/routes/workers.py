@@ -5,26 +5,28 @@ from __future__ import annotations
 from typing import Any
 
 from fastapi import APIRouter
+from fastapi.responses import Response
 
-from app.api.deps import SettingsDep, WorkerOrOperator, WriteSession
+from app.api.deps import SettingsDep, WorkerOrOperator, WriteSession, json_response
 from app.service import leases
 from app.service.schemas import ClaimIn, ClaimRead, LeaseRead, ResultIn, ResultRead
 
 router = APIRouter(tags=["workers"])
 
 
-@router.post("/workers/claim")
+@router.post("/workers/claim", response_model=list[ClaimRead])
 def claim(
     body: ClaimIn, session: WriteSession, settings: SettingsDep, actor: WorkerOrOperator
-) -> list[ClaimRead]:
+) -> Response:
     """Claim up to max_trials queued trials of a target, each under a lease."""
-    return leases.claim(
+    claims = leases.claim(
         session,
         body,
         actor=actor,
         lease_seconds=settings.lease_seconds,
         max_attempts=settings.max_attempts,
     )
+    return json_response(claims)
 
 
 @router.post("/leases/{lease_id}/heartbeat")
