@@ -305,3 +305,15 @@ def test_bad_measurements_are_refused_with_a_message(
         assert "Not saved" in error.inner_text()
     page.screenshot(path=str(screenshots / "trial_bad_measurement.png"), full_page=True)
     assert api.get_trial(trial["id"])["n_measurements"] == 0
+
+    # failing a trial needs a reason, in words; then it is failed with that reason
+    page.click("#fail-button")
+    page.locator("#reason-error").filter(has_text="Give a reason to mark failed").wait_for()
+    assert api.get_trial(trial["id"])["status"] == "queued"
+    page.fill("#reason-input", "cube slipped out of the gripper before the run")
+    page.click("#fail-button")
+    page.locator("#trial-status").filter(has_text="failed").wait_for()
+    failed = api.get_trial(trial["id"])
+    assert failed["status"] == "failed"
+    assert failed["status_reason"] == "cube slipped out of the gripper before the run"
+    assert page.locator("#measure-form").count() == 0

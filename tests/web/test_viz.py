@@ -130,7 +130,10 @@ def test_each_tab_gets_its_own_view_and_playback(browser: Any) -> None:
     try:
         model = build_model("tip_speed")
         t = np.linspace(0.0, 20.0, 50)  # 80 s at the default 0.25×: still playing when checked
-        key_a = viz.add_view(Replay("tip_speed", t, _bent_qpos(model, 50), "trial A"))
+        key_a = viz.add_view(
+            Replay("tip_speed", t, _bent_qpos(model, 50), "trial A"),
+            Replay("tip_speed", t[:30], _bent_qpos(model, 30, seed=2), "trial C"),
+        )
         key_b = viz.add_view(Replay("tip_speed", t, _bent_qpos(model, 50, seed=1), "trial B"))
         base = f"http://127.0.0.1:{viz.port}"
         # Small tabs: software WebGL on a shared CI machine is slow.
@@ -144,6 +147,8 @@ def test_each_tab_gets_its_own_view_and_playback(browser: Any) -> None:
         tabs["B"].get_by_text("trial B").wait_for(timeout=60_000)
         tabs["gone"].get_by_text("No replay here").wait_for(timeout=60_000)
         assert tabs["A"].get_by_text("trial B").count() == 0
+        tabs["A"].get_by_text("show overlay").wait_for()  # the second, see-through arm
+        assert tabs["B"].get_by_text("show overlay").count() == 0
         assert viz.sessions_for(key_a) == 1 and viz.sessions_for(key_b) == 1
 
         # dispatch, not click: a click waits for a settled frame, which a busy software
