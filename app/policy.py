@@ -43,6 +43,16 @@ class PressureLimitError(PolicyError):
         self.step = step
         self.value_pa = value_pa
 
+    def __reduce__(self) -> tuple:
+        # Keyword-only fields: pickle (process pools) needs to be told how to rebuild them.
+        return (_rebuild_limit_error, (str(self), self.chamber, self.step, self.value_pa))
+
+
+def _rebuild_limit_error(
+    message: str, chamber: int, step: int, value_pa: float
+) -> PressureLimitError:
+    return PressureLimitError(message, chamber=chamber, step=step, value_pa=value_pa)
+
 
 @dataclass(frozen=True)
 class PressureLimits:

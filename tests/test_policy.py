@@ -170,3 +170,14 @@ def test_schedule_hash_binds_exact_schedule_and_release() -> None:
     assert schedule_hash(changed, 4) != h
     assert schedule_hash(schedule, 5) != h
     assert schedule_hash(schedule, None) != h
+
+
+def test_pressure_limit_error_survives_pickling() -> None:
+    import pickle
+
+    from app.policy import PressureLimitError
+
+    err = PressureLimitError("step 2, chamber j0.x+: too high", chamber=0, step=2, value_pa=3e5)
+    back = pickle.loads(pickle.dumps(err))
+    assert isinstance(back, PressureLimitError)
+    assert (str(back), back.chamber, back.step, back.value_pa) == (str(err), 0, 2, 3e5)
