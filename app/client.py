@@ -163,6 +163,18 @@ class HandfulClient:
         """Ask the optimiser for n new trials."""
         return self.request("POST", f"/api/experiments/{experiment_id}/suggest", json={"n": n})
 
+    def suggest_timed(self, experiment_id: int, n: int = 1) -> tuple[list[JSON], dict[str, float]]:
+        """``suggest`` plus the server's timings in ms (``optimizer``, ``total``)."""
+        r = self.request(
+            "POST", f"/api/experiments/{experiment_id}/suggest", json={"n": n}, raw=True
+        )
+        timings = {}
+        for part in r.headers.get("server-timing", "").split(","):
+            name, _, dur = part.strip().partition(";dur=")
+            if name and dur:
+                timings[name] = float(dur)
+        return r.json(), timings
+
     def attach_trial(self, experiment_id: int, theta: Sequence[float], note: str = "") -> JSON:
         """Add a trial with a chosen θ (D,)."""
         body = {"theta": [float(v) for v in theta], "note": note}

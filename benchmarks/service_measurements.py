@@ -107,7 +107,8 @@ def main() -> None:
         api.close()
     a, r = statistics.median(api_rates), statistics.median(raw_rates)
     print(
-        f"API {a:8.1f} writes/s ({args.clients} client(s))   raw {r:8.1f} writes/s   "
+        f"synchronous={args.synchronous}  API {a:8.1f} writes/s ({args.clients} client(s))   "
+        f"raw {r:8.1f} writes/s   "
         f"API/raw {a / r:6.3f}"
     )
     print(
@@ -123,6 +124,7 @@ def main() -> None:
                     "api_rounds": api_rates,
                     "raw_rounds": raw_rates,
                     "clients": args.clients,
+                    "synchronous": args.synchronous,
                     "writes": args.writes,
                 }
             )

@@ -3,6 +3,7 @@ resolve, confirm (hardware gate) and run in the service (sim, the pre-worker pat
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -241,12 +242,21 @@ def build_optimizer(inputs: OptimizerInputs) -> Any:
     return opt
 
 
-def ask(inputs: OptimizerInputs, n: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """(n, D) suggested θ, and the model's predicted mean/std there (None before a GP)."""
+def ask(
+    inputs: OptimizerInputs, n: int, *, timings: dict[str, float] | None = None
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """(n, D) suggested θ, and the model's predicted mean/std there (None before a GP).
+
+    ``timings`` (if given) accumulates ``optimizer_s``: the seconds spent in make_optimizer +
+    observe_many + suggest, i.e. what the raw optimiser costs on this data.
+    """
     from app.optim import OptimError
 
+    t0 = time.perf_counter()
     opt = build_optimizer(inputs)
     thetas = np.asarray(opt.suggest(n, pending=inputs.pending), dtype=np.float64).reshape(n, -1)
+    if timings is not None:
+        timings["optimizer_s"] = timings.get("optimizer_s", 0.0) + time.perf_counter() - t0
     mean = std = None
     # Predict only once the optimiser has a model (past its initial design): then the GP it
     # just fitted for the suggestion is reused and the prediction costs next to nothing.
@@ -261,7 +271,14 @@ def ask(inputs: OptimizerInputs, n: int) -> tuple[np.ndarray, np.ndarray | None,
     return thetas, mean, std
 
 
-def suggest(db: Database, experiment_id: int, n: int, *, actor: Actor) -> list[TrialRead]:
+def suggest(
+    db: Database,
+    experiment_id: int,
+    n: int,
+    *,
+    actor: Actor,
+    timings: dict[str, float] | None = None,
+) -> list[TrialRead]:
     """Ask the optimiser for ``n`` trials given the completed and pending ones; store them.
 
     The optimiser runs outside the write lock (a GP fit takes seconds; workers keep
@@ -274,7 +291,7 @@ def suggest(db: Database, experiment_id: int, n: int, *, actor: Actor) -> list[T
             exp = get_experiment(s, experiment_id)
             _check_can_add(s, exp, n)
             inputs = optimizer_inputs(s, exp)
-        thetas, mean, std = ask(inputs, n)
+        thetas, mean, std = ask(inputs, n, timings=timings)
         with db.write() as s:
             exp = get_experiment(s, experiment_id, for_update=True)
             now = optimizer_inputs(s, exp)

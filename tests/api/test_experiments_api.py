@@ -131,7 +131,8 @@ def test_bo_suggestion_stores_predicted_mean_and_std(api):
             {"theta": [0.5] * 10, "objective": 1.5},
         ],
     )
-    [trial] = api.suggest(exp["id"])
+    [trial], timing = api.suggest_timed(exp["id"])
+    assert 0 < timing["optimizer"] <= timing["total"]
     assert trial["predicted_mean"] is not None and math.isfinite(trial["predicted_mean"])
     assert trial["predicted_std"] is not None and trial["predicted_std"] >= 0
     model = api.model(exp["id"])

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import asyncio
 import json
+import time
 from collections.abc import AsyncIterator
 from typing import Literal
 
-from fastapi import APIRouter, Query, Request
+from fastapi import APIRouter, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import PlainTextResponse, StreamingResponse
 
@@ -71,9 +72,22 @@ def list_trials(
 
 
 @router.post("/{experiment_id}/suggest", status_code=201)
-def suggest(experiment_id: int, body: SuggestIn, db: DbDep, actor: Operator) -> list[TrialRead]:
-    """Ask the optimiser (rebuilt from the database) for n new trials."""
-    return trials.suggest(db, experiment_id, body.n, actor=actor)
+def suggest(
+    experiment_id: int, body: SuggestIn, db: DbDep, actor: Operator, response: Response
+) -> list[TrialRead]:
+    """Ask the optimiser (rebuilt from the database) for n new trials.
+
+    The ``Server-Timing`` header gives the optimiser's share (``optimizer``) and the whole
+    suggestion (``total``) in ms, so clients can tell the service's overhead from the GP's.
+    """
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    out = trials.suggest(db, experiment_id, body.n, actor=actor, timings=timings)
+    total_ms = (time.perf_counter() - t0) * 1e3
+    response.headers["Server-Timing"] = (
+        f"optimizer;dur={timings.get('optimizer_s', 0.0) * 1e3:.3f}, total;dur={total_ms:.3f}"
+    )
+    return out
 
 
 @router.post("/{experiment_id}/trials", status_code=201)
