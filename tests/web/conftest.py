@@ -33,9 +33,19 @@ def _free_port() -> int:
 
 
 @pytest.fixture
-def dashboard_server(server_factory: Callable[..., Any]) -> Any:
+def dashboard_server_factory(server_factory: Callable[..., Any]) -> Callable[..., Any]:
+    """Start servers with the dashboard mounted and viser on a free loopback port."""
+
+    def start(**env: str) -> Any:
+        return server_factory(dashboard=True, env={"HANDFUL_VISER_PORT": str(_free_port()), **env})
+
+    return start
+
+
+@pytest.fixture
+def dashboard_server(dashboard_server_factory: Callable[..., Any]) -> Any:
     """A server with the dashboard mounted and viser on its own free loopback port."""
-    return server_factory(dashboard=True, env={"HANDFUL_VISER_PORT": str(_free_port())})
+    return dashboard_server_factory()
 
 
 @pytest.fixture(scope="session")

@@ -272,11 +272,12 @@ def test_viewer_sees_no_write_controls_and_cannot_forge_a_post(
     page.wait_for_selector("text=only operators can create experiments")
 
 
-def test_bad_measurements_are_refused_with_a_message(
-    dashboard_server: Any, page: Any, screenshots: Path
+def test_bad_measurements_fail_and_review_from_the_trial_page(
+    dashboard_server_factory: Any, page: Any, screenshots: Path
 ) -> None:
-    """Text, NaN and a negative distance are refused, each with words on the page."""
-    server = dashboard_server
+    """Text, NaN and a negative distance are refused, each with words on the page; failing
+    needs a reason; a lost hardware lease's needs_review is resolved from the page."""
+    server = dashboard_server_factory(HANDFUL_LEASE_SECONDS="1")
     api = server.client("operator")
     experiment = api.create_experiment(
         name="bad input",
@@ -286,7 +287,7 @@ def test_bad_measurements_are_refused_with_a_message(
         objective_unit="m",
         limits={"nominal_pa": 100_000.0, "max_step_pa": 30_000.0, "source_pa": 205_000.0},
     )
-    [trial] = api.suggest(experiment["id"])
+    trial, lost = api.suggest(experiment["id"], n=2)
     api.confirm_trial(trial["id"], trial["schedule_hash"])
     login(page, server, "operator")
     page.goto(f"{server.url}/trials/{trial['id']}")
@@ -317,3 +318,22 @@ def test_bad_measurements_are_refused_with_a_message(
     assert failed["status"] == "failed"
     assert failed["status_reason"] == "cube slipped out of the gripper before the run"
     assert page.locator("#measure-form").count() == 0
+
+    # a worker claims the other trial and vanishes: its lease expires, a person decides
+    api.confirm_trial(lost["id"], lost["schedule_hash"])
+    [claim] = server.client("worker").claim("vanishing-worker", "hardware")
+    assert claim["trial"]["id"] == lost["id"]
+    deadline = time.monotonic() + 30
+    while api.get_trial(lost["id"])["status"] != "needs_review" and time.monotonic() < deadline:
+        time.sleep(0.3)
+    assert api.get_trial(lost["id"])["status"] == "needs_review"
+    page.goto(f"{server.url}/trials/{lost['id']}")
+    page.wait_for_selector("#resolve-button")
+    page.select_option("#resolve-decision", "requeue")
+    page.fill("#reason-input", "tracker was unplugged; robot untouched, run it again")
+    page.screenshot(path=str(screenshots / "trial_needs_review.png"), full_page=True)
+    page.click("#resolve-button")
+    # requeued on hardware means: back to the safety gate, a fresh confirmation needed
+    page.locator("#trial-status").filter(has_text="awaiting confirmation").wait_for()
+    assert api.get_trial(lost["id"])["status"] == "awaiting_confirmation"
+    page.wait_for_selector("#confirm-button")

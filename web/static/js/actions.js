@@ -109,7 +109,7 @@ function measurementBox(trial, defaultUnit, done) {
   return box(`Enter measurement${trial.n_measurements ? ` (has ${trial.n_measurements})` : ""}`, form);
 }
 
-function reasonBox(trial, done) {
+function reasonBox(trial, hardware, done) {
   const error = el("p", { class: "error", role: "alert", id: "reason-error" });
   const reason = el("input", { id: "reason-input", placeholder: "reason (required), e.g. tracker lost the tip" });
   async function act(path, body, what) {
@@ -126,7 +126,7 @@ function reasonBox(trial, done) {
   const buttons = [];
   if (trial.status === "needs_review") {
     const decision = el("select", { id: "resolve-decision" },
-      el("option", { value: "requeue" }, "requeue (run it again)"),
+      el("option", { value: "requeue" }, hardware ? "requeue (run it again after a new confirmation)" : "requeue (run it again)"),
       el("option", { value: "fail" }, "fail"),
       el("option", { value: "complete" }, "complete (keep its measurements)"),
       el("option", { value: "abandon" }, "abandon"));
@@ -193,5 +193,5 @@ export function renderTrialActions(container, trial, ctx) {
   if (MEASURABLE.has(status)) {
     container.append(measurementBox(trial, experiment.objective_unit || "score", done));
   }
-  if (!TERMINAL.has(status)) container.append(reasonBox(trial, done));
+  if (!TERMINAL.has(status)) container.append(reasonBox(trial, hardware, done));
 }
