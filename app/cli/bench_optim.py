@@ -44,7 +44,10 @@ def optim(
     workers: int = typer.Option(0, "--workers", help="parallel runs (default: all cores)"),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="show progress bars"),
     cached_only: bool = typer.Option(
-        False, "--cached-only", help="run nothing: write the outputs from the finished runs in DIR"
+        False,
+        "--cached-only",
+        help="run nothing: write the outputs from the runs stored in DIR (unfinished ones too, "
+        "up to the trials they reached)",
     ),
 ) -> None:
     """Run BO, CEM, random search, Optuna and CMA-ES on the simulated tasks; write
@@ -74,9 +77,9 @@ def optim(
     except SettingsError as exc:
         _fail(str(exc))
     if cached_only:
-        runs = {s: r for s in specs if (r := sweep.cached_rows(s, out)) is not None}
+        runs = {s: r for s in specs if (r := sweep.stored_rows(s, out))}
         if not runs:
-            _fail(f"no finished runs of this sweep in {out}")
+            _fail(f"no runs of this sweep stored in {out}")
         specs = [s for s in specs if s in runs]
     else:
         runs = sweep.run_sweep(

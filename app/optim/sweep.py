@@ -167,6 +167,16 @@ def cached_rows(spec: RunSpec, out: Path) -> list[dict[str, Any]] | None:
     return rows[: spec.budget] if len(rows) >= spec.budget else None
 
 
+def stored_rows(spec: RunSpec, out: Path) -> list[dict[str, Any]]:
+    """Whatever ``out`` holds of ``spec``: a finished run's rows, else an unfinished run's rows
+    so far (possibly none), at most ``budget``."""
+    for name in (f"{spec.key}.csv", f"{spec.key}.part.csv"):
+        path = run_dir(out) / name
+        if path.exists():
+            return read_run(path)[: spec.budget]
+    return []
+
+
 def run_one(
     spec: RunSpec,
     out: Path | None = None,
