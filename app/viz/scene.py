@@ -150,11 +150,97 @@ def capsule_mesh(
     return np.asarray(verts, dtype=np.float32), np.asarray(faces, dtype=np.int32)
 
 
+def cylinder_mesh(
+    radius_m: float, half_height_m: float, *, segments: int = 28
+) -> tuple[np.ndarray, np.ndarray]:
+    """A closed cylinder along z centred at 0: vertices (V, 3) m, faces (F, 3) int32.
+
+    The caps have their own copies of the rim vertices, so the viewer's smoothed normals stay
+    radial on the side and axial on the caps (shared rims shade the disks pale).
+    """
+    th = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
+    ring = np.stack([radius_m * np.cos(th), radius_m * np.sin(th)], axis=1)
+    lo, hi = np.full(segments, -half_height_m), np.full(segments, half_height_m)
+    blocks = [
+        np.column_stack([ring, lo]),  # side, bottom rim: 0..n-1
+        np.column_stack([ring, hi]),  # side, top rim: n..2n-1
+        np.column_stack([ring, lo]),  # bottom cap rim: 2n..3n-1
+        np.column_stack([ring, hi]),  # top cap rim: 3n..4n-1
+        np.array([[0.0, 0.0, -half_height_m], [0.0, 0.0, half_height_m]]),  # cap centres
+    ]
+    verts = np.vstack(blocks).astype(np.float32)
+    n = segments
+    cb, ct = 4 * n, 4 * n + 1
+    faces = []
+    for i in range(n):
+        j = (i + 1) % n
+        faces += [(i, j, n + j), (i, n + j, n + i)]  # side, outward
+        faces += [(cb, 2 * n + j, 2 * n + i), (ct, 3 * n + i, 3 * n + j)]  # caps, outward
+    return verts, np.asarray(faces, dtype=np.int32)
+
+
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of wxyz quaternions, broadcast over leading axes."""
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
+
+
+def _quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vectors v (..., 3) by wxyz quaternions q (..., 4)."""
+    w, u = q[..., :1], q[..., 1:]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def instance_poses(
+    poses: BodyPoses, body_ids: np.ndarray, local_pos_m: np.ndarray, local_quat_wxyz: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """World poses of geoms fixed in bodies, every frame: (T, N, 3) m and (T, N, 4) wxyz."""
+    bpos = poses.pos_m[:, body_ids]  # (T, N, 3)
+    bquat = poses.quat_wxyz[:, body_ids]  # (T, N, 4)
+    pos = bpos + _quat_rotate(bquat, np.broadcast_to(local_pos_m, bpos.shape))
+    quat = _quat_mul(bquat, np.broadcast_to(local_quat_wxyz, bquat.shape))
+    return pos, quat
+
+
 def _color(rgba: tuple[float, ...], tint: tuple[int, int, int] | None) -> tuple[int, int, int]:
     rgb = np.clip(np.asarray(rgba[:3]) * 255.0, 0, 255)
     if tint is not None:
         rgb = 0.35 * rgb + 0.65 * np.asarray(tint, dtype=np.float64)
     return (int(rgb[0]), int(rgb[1]), int(rgb[2]))
+
+
+def _linear_rgb(rgb: tuple[int, int, int]) -> tuple[int, int, int]:
+    """sRGB → linear, 0..255: viser treats batched instance colours as linear (single meshes as
+    sRGB), so without this the batched disks render pale next to the same colour unbatched."""
+    c = np.asarray(rgb, dtype=np.float64) / 255.0
+    lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    out = np.round(lin * 255.0).astype(int)
+    return (int(out[0]), int(out[1]), int(out[2]))
+
+
+@dataclass
+class ArmHandles:
+    """What :func:`pose_arm` moves: body frames, and batches of identical disks.
+
+    Attributes:
+        bodies: body id → viser frame handle of a moving body.
+        batches: (batched-mesh handle, positions (T, N, 3), orientations (T, N, 4)) per group
+            of identical cylinders on moving bodies (the continuum joints' disks), posed with
+            one message each per frame instead of one per disk.
+    """
+
+    bodies: dict[int, Any]
+    batches: list[tuple[Any, np.ndarray, np.ndarray]]
 
 
 def draw_arm(
@@ -167,7 +253,7 @@ def draw_arm(
     opacity: float | None = None,
     tint: tuple[int, int, int] | None = None,
     include_static: bool = True,
-) -> dict[int, Any]:
+) -> ArmHandles:
     """Add the model's geoms to a viser scene (server- or client-scoped) under ``root``.
 
     Args:
@@ -180,13 +266,47 @@ def draw_arm(
         include_static: also draw bodies that never move (floor, plate, base).
 
     Returns:
-        body id → viser frame handle, for the bodies that move (to be posed per frame).
+        the handles to pose per frame (moving bodies and disk batches).
     """
-    handles: dict[int, Any] = {}
+    shapes = arm_geoms(model)
+    per_body: dict[int, list[GeomShape]] = {}
+    for shape in shapes:
+        per_body.setdefault(shape.body_id, []).append(shape)
+    # Moving bodies that carry exactly one cylinder (the disks) are drawn batched by look.
+    groups: dict[tuple[Any, ...], list[GeomShape]] = {}
+    for b, body_shapes in per_body.items():
+        if poses.moving[b] and len(body_shapes) == 1 and body_shapes[0].kind == "cylinder":
+            shape = body_shapes[0]
+            look = (tuple(np.round(shape.size_m, 6)), tuple(np.round(shape.rgba, 4)))
+            groups.setdefault(look, []).append(shape)
+    batched = {s.name for group in groups.values() if len(group) >= 2 for s in group}
+
+    arm = ArmHandles(bodies={}, batches=[])
+    for i, group in enumerate(g for g in groups.values() if len(g) >= 2):
+        first = group[0]
+        pos, quat = instance_poses(
+            poses,
+            np.array([s.body_id for s in group]),
+            np.array([s.pos_m for s in group]),
+            np.array([s.quat_wxyz for s in group]),
+        )
+        verts, faces = cylinder_mesh(first.size_m[0], first.size_m[1])
+        handle = scene.add_batched_meshes_simple(
+            f"{root}/disks_{i}",
+            verts,
+            faces,
+            batched_wxyzs=quat[frame],
+            batched_positions=pos[frame],
+            batched_colors=_linear_rgb(_color(first.rgba, tint)),
+            opacity=opacity,
+            lod="off",
+        )
+        arm.batches.append((handle, pos, quat))
+
     body_nodes: dict[int, str] = {}
-    for shape in arm_geoms(model):
+    for shape in shapes:
         b = shape.body_id
-        if not include_static and not poses.moving[b]:
+        if shape.name in batched or (not include_static and not poses.moving[b]):
             continue
         if b not in body_nodes:
             body_nodes[b] = f"{root}/body_{b}"
@@ -197,7 +317,7 @@ def draw_arm(
                 position=poses.pos_m[frame, b],
             )
             if poses.moving[b]:
-                handles[b] = handle
+                arm.bodies[b] = handle
         node = f"{body_nodes[b]}/{shape.name}"
         color = _color(shape.rgba, tint)
         alpha = opacity if opacity is not None else (shape.rgba[3] if shape.rgba[3] < 1 else None)
@@ -240,12 +360,15 @@ def draw_arm(
                 color=color,
                 **common,
             )
-    return handles
+    return arm
 
 
-def pose_arm(handles: dict[int, Any], poses: BodyPoses, frame: int) -> None:
-    """Move the body frames drawn by :func:`draw_arm` to replay frame ``frame``."""
+def pose_arm(arm: ArmHandles, poses: BodyPoses, frame: int) -> None:
+    """Move what :func:`draw_arm` drew to replay frame ``frame`` (clamped)."""
     f = min(max(int(frame), 0), poses.pos_m.shape[0] - 1)
-    for b, handle in handles.items():
+    for b, handle in arm.bodies.items():
         handle.wxyz = poses.quat_wxyz[f, b]
         handle.position = poses.pos_m[f, b]
+    for handle, pos, quat in arm.batches:
+        handle.batched_positions = pos[f]
+        handle.batched_wxyzs = quat[f]

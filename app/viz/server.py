@@ -26,7 +26,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from app.viz.scene import BodyPoses, body_poses, draw_arm, pose_arm
+from app.viz.scene import ArmHandles, BodyPoses, body_poses, draw_arm, pose_arm
 
 log = logging.getLogger(__name__)
 
@@ -88,8 +88,8 @@ class _Session:
 
     client: Any
     view: View
-    primary_handles: dict[int, Any]
-    overlay_handles: dict[int, Any]
+    primary_handles: ArmHandles
+    overlay_handles: ArmHandles | None
     overlay_root: Any | None
     time_slider: Any
     play_button: Any
@@ -276,7 +276,7 @@ class VizServer:
         with client.atomic():
             client.scene.set_up_direction("+z")
             primary_handles = draw_arm(client.scene, "/primary", p.model, p.poses)
-            overlay_handles: dict[int, Any] = {}
+            overlay_handles = None
             overlay_root = None
             if view.overlay is not None:
                 o = view.overlay
@@ -352,7 +352,7 @@ class VizServer:
                 view.primary.poses,
                 frame_at(view.primary.replay.time_s, session.t_s),
             )
-            if view.overlay is not None:
+            if view.overlay is not None and session.overlay_handles is not None:
                 pose_arm(
                     session.overlay_handles,
                     view.overlay.poses,

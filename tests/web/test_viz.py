@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from app.sim import build_model
-from app.viz import Replay, VizServer, arm_geoms, body_poses, frame_at
-from app.viz.scene import capsule_mesh
+from app.viz import Replay, VizServer, arm_geoms, body_poses, frame_at, instance_poses
+from app.viz.scene import capsule_mesh, cylinder_mesh
 
 
 def _quat_to_mat(q: np.ndarray) -> np.ndarray:
@@ -59,6 +59,49 @@ def test_geoms_drawn_from_body_poses_land_where_mujoco_puts_them() -> None:
     tip_disk = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "j2_disk9")
     assert not poses.moving[world] and not poses.moving[base]
     assert poses.moving[tip_disk]
+
+
+def test_batched_disk_poses_match_mujoco() -> None:
+    """The disks, drawn as one batched mesh per look, sit where MuJoCo puts each disk geom."""
+    model = build_model("hammer")
+    qpos = _bent_qpos(model, 4, seed=3)
+    poses = body_poses(model, qpos)
+    disks = [s for s in arm_geoms(model) if s.kind == "cylinder" and poses.moving[s.body_id]]
+    assert len(disks) == 29  # joint 0's first disk sits on the base and never moves
+    pos, quat = instance_poses(
+        poses,
+        np.array([s.body_id for s in disks]),
+        np.array([s.pos_m for s in disks]),
+        np.array([s.quat_wxyz for s in disks]),
+    )
+    data = mujoco.MjData(model)
+    for t in range(4):
+        data.qpos[:] = qpos[t]
+        mujoco.mj_forward(model, data)
+        for i, s in enumerate(disks):
+            g = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, s.name)
+            np.testing.assert_allclose(pos[t, i], data.geom_xpos[g], atol=1e-9)
+            mat = _quat_to_mat(quat[t, i])
+            np.testing.assert_allclose(mat, data.geom_xmat[g].reshape(3, 3), atol=1e-9)
+
+
+def test_cylinder_mesh_is_closed_and_sized() -> None:
+    verts, faces = cylinder_mesh(0.125, 0.005, segments=12)
+    assert np.hypot(verts[:48, 0], verts[:48, 1]) == pytest.approx(np.full(48, 0.125))
+    assert np.unique(np.round(verts[:, 2].astype(float), 6)).tolist() == [-0.005, 0.005]
+    # closed (caps and side have their own rim copies): every edge, by position, is shared
+    # by exactly two faces
+    pos = [tuple(np.round(v, 6)) for v in verts.astype(float)]
+    edges: dict[tuple[Any, Any], int] = {}
+    for f in faces:
+        for a, b in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0])):
+            key = tuple(sorted((pos[a], pos[b])))
+            edges[key] = edges.get(key, 0) + 1
+    assert set(edges.values()) == {2}
+    # outward: each face's normal points away from the centre
+    tri = verts[faces].astype(float)
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    assert np.all(np.einsum("ij,ij->i", normal, tri.mean(axis=1)) > 0)
 
 
 @pytest.mark.parametrize(
