@@ -129,6 +129,8 @@ def cpu_s(*, pgid: int | None = None, pid: int | None = None) -> float:
         except OSError:
             continue
         # after "pid (comm)": state ppid pgrp session ... utime(14) stime(15), 1-based overall
-        if (pgid is not None and int(fields[2]) == pgid) or int(entry.name) == pid:
+        if (pgid is not None and int(fields[2]) == pgid) or (
+            pgid is None and int(entry.name) == pid
+        ):
             total += (int(fields[11]) + int(fields[12])) / tick
     return total

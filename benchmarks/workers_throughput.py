@@ -59,12 +59,14 @@ def run_workers(
             api.suggest(warm["id"], n=3 * k)
             _wait_done(api, warm["id"], 3 * k)
             cpu0 = sum(cpu_s(pgid=p.pid) for p in procs)
+            main0 = sum(cpu_s(pid=p.pid) for p in procs)
             srv0 = cpu_s(pid=srv.proc.pid)
             exp = api.create_experiment(name="throughput", seed=args.seed, **spec)
             for start in range(0, args.episodes, 100):
                 api.suggest(exp["id"], n=min(100, args.episodes - start))
             trials = _wait_done(api, exp["id"], args.episodes)
             worker_cpu = (sum(cpu_s(pgid=p.pid) for p in procs) - cpu0) / args.episodes
+            main_cpu = (sum(cpu_s(pid=p.pid) for p in procs) - main0) / args.episodes
             server_cpu = (cpu_s(pid=srv.proc.pid) - srv0) / args.episodes
         finally:
             for p in procs:
@@ -75,6 +77,7 @@ def run_workers(
         t0 = min(_ts(t["started_at"]) for t in trials)
         t1 = max(_ts(t["finished_at"]) for t in trials)
         rate = len(trials) / (t1 - t0)
+        print(f"  worker main processes (HTTP, leases): {main_cpu:.4f} CPU s/episode", flush=True)
         return rate, worker_cpu, server_cpu, sorted(trials, key=lambda t: t["index"])
 
 

@@ -86,14 +86,18 @@ def run_sim_trial(
 
 
 def trajectory_npz_bytes(trajectory: Any) -> bytes:
-    """The same compressed npz `Trajectory.to_npz` writes, as bytes (no temp file)."""
+    """The trajectory's arrays (the fields `Trajectory.to_npz` writes) as npz bytes.
+
+    Uncompressed on purpose: float64 physics states shrink by only ~7 % under zlib, which costs
+    ~20 ms of CPU per episode (14 % of a fast-preset rollout).
+    """
     arrays = {
         f.name: getattr(trajectory, f.name)
         for f in dataclasses.fields(trajectory)
         if getattr(trajectory, f.name) is not None
     }
     buf = io.BytesIO()
-    np.savez_compressed(buf, **arrays)
+    np.savez(buf, **arrays)
     return buf.getvalue()
 
 
