@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -142,3 +144,19 @@ def test_recording_driver_logs_every_command_before_running_it(tmp_path):
     assert [e["trial_id"] for e in logged] == [0, 1]
     for entry, c in zip(logged, cmds, strict=True):
         np.testing.assert_array_equal(entry["pressure_schedule_pa"], c.pressure_schedule_pa)
+
+
+def test_standin_abort_stops_a_realtime_run_and_vents_to_nominal(tmp_path):
+    cmd = command(np.full(POLICY.dim, 0.7))
+    driver = quiet(tmp_path, realtime="true")
+    threading.Timer(1.2, driver.abort).start()
+    t0 = time.monotonic()
+    ex = driver.execute(cmd)
+    assert time.monotonic() - t0 < 4.0  # not the whole 5 s
+    assert ex.fault is not None and ex.fault.startswith("aborted by the worker")
+    assert 0.5 < ex.tracking.time_s[-1] < 3.0
+    done = int(np.ceil(ex.tracking.time_s[-1] / cmd.step_s - 1e-9))
+    np.testing.assert_array_equal(
+        ex.executed_pressure_schedule_pa[done:],
+        np.broadcast_to(cmd.nominal_pa, (cmd.horizon - done, 12)),
+    )
