@@ -11,6 +11,9 @@ It runs the MuJoCo simulator (`app.sim.rollout`) and then behaves like the lab's
 * **Faults** like the real robot's: an I2C fault becomes likely once the tip goes faster than
   `fault_speed_m_s` (the paper's fast runs broke electronics), and the tracker is lost now and
   then. After a fault the controller vents to nominal and the trial is reported as faulted.
+* **Throw and hammer scores** are left to the operator's tape measure, as on the real robot;
+  with `-o tape_measure=true` the stand-in plays that person too (simulated score ± 2 %), for
+  unattended demos and benchmarks.
 
 The driver never learns its own drift: it reports the schedule it was told to run (the
 controller tracks commanded pressures), exactly like the real robot would.
@@ -155,6 +158,7 @@ class StandinDriver:
         fault_speed_m_s: str | float = 2.0,
         fault_probability: str | float = 0.5,
         tracker_loss_probability: str | float = 0.01,
+        tape_measure: str | bool = False,
     ) -> None:
         try:
             self.seed = int(seed)
@@ -162,6 +166,9 @@ class StandinDriver:
             raise DriverError(f"standin option seed={seed!r} is not an integer") from None
         self.preset = str(preset)
         self.realtime = _as_bool(realtime)
+        # Off by default, as on the real robot: a person measures throws and hits with a tape
+        # and enters the numbers. On: the stand-in plays that person (unattended demos, benches).
+        self.tape_measure = _as_bool(tape_measure)
         self.tracker_hz = _as_float("tracker_hz", tracker_hz, lo=1.0, hi=2000.0)
         self.position_noise_m = _as_float("position_noise_m", position_noise_m, lo=0.0, hi=0.1)
         self.velocity_noise_m_s = _as_float("velocity_noise_m_s", velocity_noise_m_s, lo=0, hi=5)
@@ -300,7 +307,7 @@ class StandinDriver:
                 if release is not None and release > done_steps:
                     release = None
             measured = None
-            if fault is None and command.task != "tip_speed":
+            if self.tape_measure and fault is None and command.task != "tip_speed":
                 # A person measures throws/hits by hand: a few percent of scatter.
                 measured = float(res.objective * (1.0 + rng.normal(0.0, 0.02)))
             info["stiffness_scale"] = stiffness
