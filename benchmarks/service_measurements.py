@@ -80,6 +80,32 @@ def raw_round(db_url: str, trial_ids: list[int], writes: int, synchronous: str) 
     return rate
 
 
+def service_round(db_url: str, trial_ids: list[int], writes: int, synchronous: str) -> float:
+    """Writes/s of the service function alone (no HTTP): validation, idempotency, objective,
+    audit, version, reply built; on the same file. Where the API's time goes."""
+    from app.db.session import Database
+    from app.service.auth import Actor
+    from app.service.measurements import add_measurements
+    from app.service.schemas import MeasurementsIn
+
+    db = Database(db_url, sqlite_synchronous=synchronous)
+    actor = Actor("bench", "operator")
+    t0 = time.perf_counter()
+    for i in range(writes):
+        body = MeasurementsIn(repeats=[{"value": 2.0 + 0.001 * i, "unit": "m/s"}])
+        with db.write() as s:
+            add_measurements(
+                s,
+                trial_ids[i % len(trial_ids)],
+                body,
+                idempotency_key=uuid.uuid4().hex,
+                actor=actor,
+            )
+    rate = writes / (time.perf_counter() - t0)
+    db.dispose()
+    return rate
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--writes", type=int, default=300)
@@ -100,16 +126,18 @@ def main() -> None:
             trial_ids += [t["id"] for t in api.suggest(exp["id"], n=100)]
         trial_ids = trial_ids[: args.trials]
         api_round(srv.url, srv.token, trial_ids, 20, 1)  # warm-up
-        api_rates, raw_rates = [], []
+        api_rates, raw_rates, svc_rates = [], [], []
         for _ in range(args.rounds):
+            svc_rates.append(service_round(srv.db_url, trial_ids, args.writes, args.synchronous))
             api_rates.append(api_round(srv.url, srv.token, trial_ids, args.writes, args.clients))
             raw_rates.append(raw_round(srv.db_url, trial_ids, args.writes, args.synchronous))
         api.close()
     a, r = statistics.median(api_rates), statistics.median(raw_rates)
+    sv = statistics.median(svc_rates)
     print(
         f"synchronous={args.synchronous}  API {a:8.1f} writes/s ({args.clients} client(s))   "
         f"raw {r:8.1f} writes/s   "
-        f"API/raw {a / r:6.3f}"
+        f"API/raw {a / r:6.3f}   (service alone, no HTTP: {sv:.1f} writes/s = {sv / r:.3f} of raw)"
     )
     print(
         "  rounds API:", [round(x, 1) for x in api_rates], " raw:", [round(x, 1) for x in raw_rates]
@@ -123,6 +151,8 @@ def main() -> None:
                     "ratio": a / r,
                     "api_rounds": api_rates,
                     "raw_rounds": raw_rates,
+                    "service_per_s": sv,
+                    "service_rounds": svc_rates,
                     "clients": args.clients,
                     "synchronous": args.synchronous,
                     "writes": args.writes,
