@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Annotated
 
@@ -69,14 +70,31 @@ def _bearer(request: Request) -> str | None:
     return token.strip()
 
 
+TOKEN_CACHE_S = 5.0  # a revoked token or disabled user is refused at most this much later
+
+
 def current_actor(request: Request) -> Actor | None:
-    """The caller, or None when no token was sent (Unauthorized for a bad token)."""
+    """The caller, or None when no token was sent (Unauthorized for a bad token).
+
+    Valid tokens are remembered for ``TOKEN_CACHE_S`` (by their SHA-256) to spare a database
+    round trip per request; unknown tokens are looked up every time.
+    """
     token = _bearer(request)
     if token is None:
         return None
+    cache: dict[str, tuple[Actor, float]] = request.app.state.token_cache
+    digest = auth.token_digest(token)
+    hit = cache.get(digest)
+    now = time.monotonic()
+    if hit is not None and hit[1] > now:
+        return hit[0]
     db: Database = request.app.state.db
     with db.read() as s:
-        return auth.authenticate(s, token)
+        actor = auth.authenticate(s, token)
+    if len(cache) > 10_000:
+        cache.clear()
+    cache[digest] = (actor, now + TOKEN_CACHE_S)
+    return actor
 
 
 def require(*roles: str, what: str) -> Callable[..., Awaitable[Actor]]:

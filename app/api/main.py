@@ -108,6 +108,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.db = Database(settings.db_url, sqlite_synchronous=settings.sqlite_synchronous)
     app.state.previews = PreviewRunner(settings.preview.workers, settings.preview.max_jobs)
+    app.state.token_cache = {}
     app.state.startup_hooks = []
     app.state.shutdown_hooks = []
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
