@@ -272,3 +272,23 @@ def test_base64_trajectory_roundtrip(op, worker):
     with np.load(io.BytesIO(raw)) as z:
         np.testing.assert_array_equal(z["qpos"], arrays["qpos"])
     assert base64.b64encode(worker_npz)
+
+
+def test_resolve_complete_needs_a_measurement_and_fail_ends_it(op, worker):
+    hw = new_exp(op, target="hardware")
+    a, b = op.suggest(hw["id"], n=2)
+    for t in (a, b):
+        op.confirm_trial(t["id"], t["schedule_hash"])
+    claims = {c["trial"]["id"]: c["lease_id"] for c in worker.claim("hw", "hardware", 2)}
+    for t in (a, b):
+        worker.report_result(t["id"], claims[t["id"]], fault="tracking lost")
+    err = error_of(op.resolve_trial, a["id"], "complete", "it looked fine")
+    assert err.status == 409 and "no measurement" in err.detail
+    op.add_measurements(a["id"], [{"value": 3.9, "unit": "m/s", "note": "high-speed video"}])
+    assert op.get_trial(a["id"])["status"] == "needs_review"  # a person still decides
+    t = op.resolve_trial(a["id"], "complete", "video confirms the speed")
+    assert t["status"] == "completed" and t["objective"] == 3.9
+    t = op.resolve_trial(b["id"], "fail", "arm slipped")
+    assert t["status"] == "failed" and t["status_reason"] == "arm slipped"
+    audit = op.get_trial(a["id"])["audit"]
+    assert any(x["action"] == "trial.resolve" and x["actor"] == "operator" for x in audit)
