@@ -341,6 +341,8 @@ def schedule_hash(pressure_schedule_pa: np.ndarray, release_step: int | None = N
     same numbers give the same hash while any real change gives a different one.
     """
     schedule = np.asarray(pressure_schedule_pa, dtype=np.float64)
+    if not np.all(np.isfinite(schedule)):
+        raise PolicyError("cannot hash a pressure schedule with NaN or infinite values")
     payload = {
         "pressure_schedule_mpa": np.round(schedule * 1000.0).astype(np.int64).tolist(),
         "release_step": None if release_step is None else int(release_step),

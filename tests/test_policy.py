@@ -181,3 +181,12 @@ def test_pressure_limit_error_survives_pickling() -> None:
     back = pickle.loads(pickle.dumps(err))
     assert isinstance(back, PressureLimitError)
     assert (str(back), back.chamber, back.step, back.value_pa) == (str(err), 0, 2, 3e5)
+
+
+def test_schedule_hash_refuses_non_finite_schedules() -> None:
+    from app.policy import PolicyError, schedule_hash
+
+    schedule = np.full((10, 12), 1e5)
+    schedule[3, 4] = np.nan
+    with pytest.raises(PolicyError, match="NaN"):
+        schedule_hash(schedule, None)
