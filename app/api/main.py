@@ -21,7 +21,7 @@ from app.api.limits import BodySizeLimit
 from app.api.routes import auth, experiments, trials, workers
 from app.config import Settings
 from app.db.session import Database
-from app.service.leases import sweep_expired
+from app.service.leases import grant_restart_grace, sweep_expired
 from app.service.runs import PreviewRunner
 
 log = logging.getLogger("handful.api")
@@ -60,6 +60,18 @@ async def _sweep_forever(app: FastAPI) -> None:
 
 @asynccontextmanager
 async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
+    settings: Settings = app.state.settings
+    db: Database = app.state.db
+
+    def grace() -> int:
+        with db.write() as s:
+            return grant_restart_grace(s, lease_seconds=settings.lease_seconds)
+
+    n = await run_in_threadpool(grace)
+    if n:
+        log.info(
+            "gave %d active lease(s) a fresh %.0f s after the restart", n, settings.lease_seconds
+        )
     for hook in list(app.state.startup_hooks):
         await _call(hook, app)
     sweeper = asyncio.create_task(_sweep_forever(app))

@@ -72,6 +72,27 @@ def theta_from_schedule(
 
 
 # --- expiry ----------------------------------------------------------------------------------
+def grant_restart_grace(
+    session: Session, *, lease_seconds: float, now: datetime | None = None
+) -> int:
+    """At server start: give every active lease ``lease_seconds`` from now. Flushes.
+
+    Leases run on wall-clock time, but a worker cannot heartbeat while the server is down; without
+    this a slow restart would expire healthy leases and rerun (or, on hardware, hold for review)
+    trials whose workers are still busy with them. A worker that really died still loses its
+    lease ``lease_seconds`` after the restart.
+    """
+    now = now or utcnow()
+    until = now + timedelta(seconds=lease_seconds)
+    n = 0
+    for lease in session.scalars(select(Lease).where(Lease.status == "active")):
+        if lease.expires_at < until:
+            lease.expires_at = until
+            n += 1
+    session.flush()
+    return n
+
+
 def sweep_expired(session: Session, *, max_attempts: int, now: datetime | None = None) -> int:
     """Expire every active lease past its time; requeue/fail/needs_review its trial. Flushes."""
     now = now or utcnow()
