@@ -325,6 +325,9 @@ def report_result(
     # --- validate everything before storing anything
     exec_sched = body.executed_pressure_schedule_pa
     exec_release = body.executed_release_step
+    # A fault with no executed schedule means nothing ran (e.g. the worker's own gate refused
+    # it): record nothing as executed. Without a fault, no schedule means "ran as planned".
+    ran = exec_sched is not None or not body.fault
     if exec_sched is None:
         exec_sched, exec_release = trial.pressure_schedule_pa, trial.release_step
     exec_theta = theta_from_schedule(policy, exec_sched, exec_release)
@@ -341,9 +344,10 @@ def report_result(
     except SafetyViolation as exc:
         beyond = str(exc)
     # --- store
-    trial.executed_pressure_schedule_pa = np.asarray(exec_sched, dtype=np.float64).tolist()
-    trial.executed_release_step = exec_release
-    trial.executed_theta = [float(v) for v in exec_theta]
+    if ran:
+        trial.executed_pressure_schedule_pa = np.asarray(exec_sched, dtype=np.float64).tolist()
+        trial.executed_release_step = exec_release
+        trial.executed_theta = [float(v) for v in exec_theta]
     if raw is not None:
         store_trajectory(session, artifacts_dir, trial, raw, actor=actor, tag=lease.id[:8])
     if body.objective is not None:
@@ -365,6 +369,9 @@ def report_result(
             new, reason = lc.FAILED, f"fault reported by the worker: {body.fault}"
     elif beyond is not None:
         new, reason = lc.NEEDS_REVIEW, f"executed schedule beyond the limits: {beyond}"
+    elif trial.objective is None and exp.target == "hardware" and exp.task != "tip_speed":
+        # Throws and hits on the real robot are scored by a person with a tape measure.
+        new, reason = lc.COMPLETED, "ran; awaiting the operator's measurement"
     elif trial.objective is None:
         new, reason = lc.NEEDS_REVIEW, "the worker reported no objective and no fault"
     else:

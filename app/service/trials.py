@@ -216,7 +216,9 @@ def optimizer_inputs(session: Session, exp: Experiment) -> OptimizerInputs:
                     None if t.objective_sem is None else float(t.objective_sem),
                 )
             )
-        elif t.status in lc.PENDING:
+        elif t.status in lc.PENDING or t.status == lc.COMPLETED:
+            # Includes trials that ran but await the operator's measurement: θ taken, outcome
+            # unknown.
             pending.append(t.theta)
             pending_ids.add(t.id)
     dim = exp.horizon + int(exp.with_release)

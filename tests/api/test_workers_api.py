@@ -170,6 +170,8 @@ def test_sim_fault_fails_hardware_fault_needs_review(op, worker):
     [c] = worker.claim("hw-1", "hardware")
     t = worker.report_result(ht["id"], c["lease_id"], fault="I2C bus fault on joint 2")["trial"]
     assert t["status"] == "needs_review" and "I2C" in t["status_reason"]
+    # the fault came with no executed schedule: nothing is recorded as having run
+    assert t["executed_pressure_schedule_pa"] is None and t["executed_theta"] is None
     t = op.resolve_trial(ht["id"], "requeue", "sensor reseated")
     assert t["status"] == "awaiting_confirmation" and t["confirmed_hash"] is None
     assert worker.claim("hw-1", "hardware") == []  # needs a fresh confirmation
@@ -292,3 +294,22 @@ def test_resolve_complete_needs_a_measurement_and_fail_ends_it(op, worker):
     assert t["status"] == "failed" and t["status_reason"] == "arm slipped"
     audit = op.get_trial(a["id"])["audit"]
     assert any(x["action"] == "trial.resolve" and x["actor"] == "operator" for x in audit)
+
+
+def test_hardware_throw_waits_for_the_operators_tape_measure(op, worker):
+    hw = new_exp(op, target="hardware", task="throw", objective_unit="m")
+    [t] = op.suggest(hw["id"])
+    op.confirm_trial(t["id"], t["schedule_hash"])
+    [c] = worker.claim("hw", "hardware")
+    out = worker.report_result(
+        t["id"],
+        c["lease_id"],
+        executed_pressure_schedule_pa=t["pressure_schedule_pa"],
+        executed_release_step=t["release_step"],
+    )["trial"]
+    assert out["status"] == "completed" and out["objective"] is None
+    assert "awaiting the operator's measurement" in out["status_reason"]
+    measured = op.add_measurements(
+        t["id"], [{"value": 2.4, "unit": "m", "note": "tape"}, {"value": 2.6, "unit": "m"}]
+    )
+    assert measured["objective"] == pytest.approx(2.5) and measured["n_measurements"] == 2

@@ -59,3 +59,18 @@ def test_grace_never_shortens_a_lease(db, make_experiment, make_trial):
         )
     with db.read() as s:
         assert s.get(Lease, lease_id).expires_at == before
+
+
+def test_a_run_trial_awaiting_its_measurement_counts_as_pending(db, make_experiment, make_trial):
+    from app.service import experiments, trials
+
+    exp_id = make_experiment(target="hardware", task="throw")
+    measured = make_trial(exp_id, status=lc.COMPLETED, theta=[0.3] * 11)
+    with db.write() as s:
+        s.get(Trial, measured).objective = 1.5
+    waiting = make_trial(exp_id, status=lc.COMPLETED, theta=[0.7] * 11)
+    with db.read() as s:
+        inputs = trials.optimizer_inputs(s, experiments.get_experiment(s, exp_id))
+    assert inputs.observed_ids == (measured,)
+    assert inputs.pending_ids == frozenset({waiting})
+    assert inputs.pending.tolist() == [[0.7] * 11]
