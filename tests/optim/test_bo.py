@@ -16,7 +16,7 @@ from app.optim import METHODS, BayesOpt, Observation, SettingsError, make_optimi
 from app.optim.bo import LevelSpace
 from app.policy import Policy
 
-FAST = {"num_restarts": 2, "raw_samples": 64}
+FAST = {"num_restarts": 2, "raw_samples": 64, "fit_maxiter": 50}
 
 
 def bumpy(theta: np.ndarray) -> float:
@@ -48,7 +48,8 @@ def test_bo_beats_random_on_hartmann6_within_30_evaluations():
     best = {"bo-lei": [], "random": []}
     for seed in range(3):
         for method in best:
-            opt = make_optimizer(method, 6, seed=seed, **(FAST if method == "bo-lei" else {}))
+            fast = {"num_restarts": 2, "raw_samples": 64}
+            opt = make_optimizer(method, 6, seed=seed, **(fast if method == "bo-lei" else {}))
             ys = []
             for _ in range(30):
                 x = opt.suggest(1)[0]
