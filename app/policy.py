@@ -341,10 +341,16 @@ def schedule_hash(pressure_schedule_pa: np.ndarray, release_step: int | None = N
     same numbers give the same hash while any real change gives a different one.
     """
     schedule = np.asarray(pressure_schedule_pa, dtype=np.float64)
-    if not np.all(np.isfinite(schedule)):
-        raise PolicyError("cannot hash a pressure schedule with NaN or infinite values")
+    finite = np.isfinite(schedule)
+    millipascals = np.round(np.where(finite, schedule, 0.0) * 1000.0).astype(np.int64)
+    # A forged or corrupted schedule still hashes (so it can be refused by name, never
+    # crash a read); its NaN/inf entries hash as themselves, unlike any real schedule.
+    cells = [
+        [int(v) if ok else repr(float(x)) for v, ok, x in zip(row_v, row_ok, row_x, strict=True)]
+        for row_v, row_ok, row_x in zip(millipascals, finite, schedule, strict=True)
+    ]
     payload = {
-        "pressure_schedule_mpa": np.round(schedule * 1000.0).astype(np.int64).tolist(),
+        "pressure_schedule_mpa": cells,
         "release_step": None if release_step is None else int(release_step),
     }
     blob = json.dumps(payload, sort_keys=True, separators=(",", ":")).encode()
