@@ -82,6 +82,10 @@ def main() -> None:
     ap.add_argument("--json", default=None)
     a = ap.parse_args()
     results = []
+    # Raw BoTorch gets the same intra-op threads the interface uses for its fits and searches.
+    from app.optim.bo import TORCH_THREADS
+
+    torch.set_num_threads(TORCH_THREADS)
     print(f"torch threads: {torch.get_num_threads()}")
     print("| N | interface (s) | raw BoTorch (s) | overhead | same suggestion |")
     print("|---:|---:|---:|---:|---|")
