@@ -446,7 +446,9 @@ def plot_curves(rows: Sequence[dict[str, Any]], path: Path) -> None:
         ax.grid(alpha=0.3)
     for ax in list(axes.flat)[len(panels) :]:
         ax.axis("off")
-    axes.flat[0].legend(fontsize=8, loc="lower right")
+    # One legend per panel: a method may be missing from some panels (e.g. not run at a P).
+    for ax in list(axes.flat)[: len(panels)]:
+        ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
