@@ -177,6 +177,12 @@ def test_operator_loop_on_the_standin_robot(
     page.fill("input[aria-label='repeat 2 value']", "1.48")
     page.fill("input[aria-label='repeat 2 note']", "second tape")
     assert page.inner_text("#measure-summary") == "mean 1.500 ± 0.020 (SEM) m over 2 repeats"
+    # a live update while the operator types (here: a colleague's measurement from a script)
+    # re-renders the card but keeps the repeats being typed
+    api.add_measurements(trial["id"], [{"value": 1.50, "unit": "m", "note": "from a script"}])
+    page.get_by_text("Enter measurement (has 1)").wait_for(timeout=20_000)
+    assert page.input_value("input[aria-label='repeat 1 value']") == "1.52"
+    assert page.input_value("input[aria-label='repeat 2 note']") == "second tape"
     page.click("#measure-save")
     page.wait_for_selector("#exp-ok:has-text('Saved 2 repeats')")
 

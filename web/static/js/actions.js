@@ -82,7 +82,7 @@ function measurementBox(trial, defaultUnit, done) {
   }
 
   const save = el("button", { class: "primary", type: "submit", id: "measure-save" }, "Save measurement");
-  const form = el("form", { id: "measure-form", novalidate: true, onsubmit: async (ev) => {
+  const form = el("form", { id: "measure-form", dataset: { trialId: trial.id }, novalidate: true, onsubmit: async (ev) => {
     ev.preventDefault();
     error.textContent = "";
     const { repeats, problems } = read(true);
@@ -143,6 +143,20 @@ function reasonBox(trial, hardware, done) {
  * ctx: {experiment, incumbentId, onChange(message)}
  */
 export function renderTrialActions(container, trial, ctx) {
+  // A live update (e.g. the worker finishing this trial) must not wipe repeats the operator
+  // is typing: keep the measurement form of the same trial when it holds any input.
+  const typing = container.querySelector("#measure-form");
+  const keepForm = typing && typing.dataset.trialId === String(trial.id)
+    && [...typing.querySelectorAll("input")].some((i) => i.value.trim() !== "");
+  try {
+    buildTrialActions(container, trial, ctx);
+  } finally {
+    const fresh = keepForm && container.querySelector("#measure-form");
+    if (fresh) fresh.replaceWith(typing);
+  }
+}
+
+function buildTrialActions(container, trial, ctx) {
   container.replaceChildren();
   const { experiment } = ctx;
   const done = (msg) => ctx.onChange(msg);
