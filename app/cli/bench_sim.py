@@ -299,10 +299,13 @@ def run(
 
 
 def bench_sim(
-    repeats: Annotated[int, typer.Option(help="Episodes timed per preset (1 core).")] = 7,
-    episodes: Annotated[int, typer.Option(help="Episodes per throughput run.")] = 8,
+    repeats: Annotated[int, typer.Option(min=1, help="Episodes timed per preset (1 core).")] = 7,
+    episodes: Annotated[int, typer.Option(min=1, help="Episodes per throughput run.")] = 8,
     fidelity_schedules: Annotated[
-        int, typer.Option(help="Random schedules per task for fast-vs-reference.")
+        int,
+        typer.Option(
+            min=2, help="Random schedules per task for fast-vs-reference (half θ, half uniform)."
+        ),
     ] = 10,
     seed: Annotated[int, typer.Option(help="Seed of the random schedules.")] = 0,
     write: Annotated[
