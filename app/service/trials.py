@@ -371,44 +371,36 @@ def _end_lease(session: Session, trial: Trial, status: str, *, actor: Actor, why
     )
 
 
-def fail(session: Session, trial_id: int, reason: str, *, actor: Actor) -> TrialRead:
-    """Mark a trial failed (an abort when it is running: its lease is revoked)."""
+def _end_by_operator(
+    session: Session, trial_id: int, status: str, verb: str, reason: str, *, actor: Actor
+) -> TrialRead:
+    """Move a trial to ``status`` (failed/abandoned); a running one is aborted, lease revoked."""
     trial = get_trial(session, trial_id, for_update=True)
     was = trial.status
     lc.transition(
         session,
         trial,
-        lc.FAILED,
+        status,
         actor=actor.username,
         reason=reason,
-        action="trial.abort" if was == lc.RUNNING else "trial.fail",
+        action="trial.abort" if was == lc.RUNNING else f"trial.{verb}",
     )
     if was == lc.RUNNING:
-        _end_lease(session, trial, "revoked", actor=actor, why=f"trial failed: {reason}")
+        _end_lease(session, trial, "revoked", actor=actor, why=f"trial {status}: {reason}")
     touch(trial.experiment)
     out = TrialRead.build(trial)
     session.commit()
     return out
+
+
+def fail(session: Session, trial_id: int, reason: str, *, actor: Actor) -> TrialRead:
+    """Mark a trial failed (an abort when it is running: its lease is revoked)."""
+    return _end_by_operator(session, trial_id, lc.FAILED, "fail", reason, actor=actor)
 
 
 def abandon(session: Session, trial_id: int, reason: str, *, actor: Actor) -> TrialRead:
     """Abandon a trial: never run, never suggested again (its lease, if any, is revoked)."""
-    trial = get_trial(session, trial_id, for_update=True)
-    was = trial.status
-    lc.transition(
-        session,
-        trial,
-        lc.ABANDONED,
-        actor=actor.username,
-        reason=reason,
-        action="trial.abort" if was == lc.RUNNING else "trial.abandon",
-    )
-    if was == lc.RUNNING:
-        _end_lease(session, trial, "revoked", actor=actor, why=f"trial abandoned: {reason}")
-    touch(trial.experiment)
-    out = TrialRead.build(trial)
-    session.commit()
-    return out
+    return _end_by_operator(session, trial_id, lc.ABANDONED, "abandon", reason, actor=actor)
 
 
 def resolve(session: Session, trial_id: int, body: ResolveIn, *, actor: Actor) -> TrialRead:
