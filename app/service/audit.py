@@ -5,10 +5,14 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Any
 
+from sqlalchemy import insert
 from sqlalchemy.orm import Session
 
 from app.db.base import utcnow
 from app.db.models import AuditLog
+
+# Built once: constructing a statement costs more than running it on SQLite.
+_INSERT = insert(AuditLog.__table__)
 
 
 def record(
@@ -24,19 +28,23 @@ def record(
     after: str | None = None,
     detail: dict[str, Any] | None = None,
     now: datetime | None = None,
-) -> AuditLog:
-    """Append one audit row (flushed with the caller's transaction, never on its own)."""
-    row = AuditLog(
-        at=now or utcnow(),
-        actor=actor,
-        action=action,
-        entity=entity,
-        entity_id=str(entity_id),
-        experiment_id=experiment_id,
-        trial_id=trial_id,
-        before=before,
-        after=after,
-        detail=detail,
+) -> None:
+    """Append one audit row in the caller's transaction (a plain INSERT, committed with it).
+
+    Rows are written when recorded, so their ids follow the order of the calls.
+    """
+    session.connection().execute(
+        _INSERT,
+        {
+            "at": now or utcnow(),
+            "actor": actor,
+            "action": action,
+            "entity": entity,
+            "entity_id": str(entity_id),
+            "experiment_id": experiment_id,
+            "trial_id": trial_id,
+            "before": before,
+            "after": after,
+            "detail": detail,
+        },
     )
-    session.add(row)
-    return row

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from sqlalchemy import func, select
+from sqlalchemy import bindparam, func, select, update
+from sqlalchemy import inspect as sa_inspect
 from sqlalchemy.orm import Session
 
 from app.db.base import utcnow
@@ -45,6 +46,23 @@ def touch(exp: Experiment) -> None:
     """Mark the experiment changed (its version is the live pages' change signal)."""
     exp.version = (exp.version or 0) + 1
     exp.updated_at = utcnow()
+
+
+_TOUCH = (
+    update(Experiment.__table__)
+    .where(Experiment.__table__.c.id == bindparam("experiment_id"))
+    .values(version=Experiment.__table__.c.version + 1, updated_at=bindparam("now"))
+)
+
+
+def touch_id(session: Session, experiment_id: int) -> None:
+    """``touch`` by id: in SQL when the experiment is not loaded (no need to load it), on the
+    loaded object otherwise (an UPDATE behind its back would leave its version stale)."""
+    key = sa_inspect(Experiment).identity_key_from_primary_key((experiment_id,))
+    if key in session.identity_map:
+        touch(session.identity_map[key])
+        return
+    session.connection().execute(_TOUCH, {"experiment_id": experiment_id, "now": utcnow()})
 
 
 def optimizer_kwargs(exp: Experiment) -> dict[str, Any]:

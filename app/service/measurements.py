@@ -8,17 +8,19 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
-from sqlalchemy import select
+from sqlalchemy import bindparam, insert, select
+from sqlalchemy import inspect as sa_inspect
 from sqlalchemy.orm import Session
 
 from app.db.base import utcnow
 from app.db.models import Experiment, IdempotencyKey, Measurement, Trial
 from app.service import lifecycle as lc
+from app.service.artifacts import has_trajectory
 from app.service.audit import record
 from app.service.auth import Actor
 from app.service.errors import Conflict, DuplicateRequest, IllegalTransition, InvalidInput
-from app.service.experiments import touch
-from app.service.schemas import MeasurementsIn, TrialDetail
+from app.service.experiments import touch_id
+from app.service.schemas import MeasuredTrial, MeasurementRead, MeasurementsIn
 
 #: plausible range of one measurement, per unit (anything outside is a typo or a unit mix-up)
 UNIT_RANGE: dict[str, tuple[float, float]] = {
@@ -57,15 +59,23 @@ def check_value(value: float, unit: str, expected_unit: str, *, what: str = "val
         raise InvalidInput(f"{what} {value!r} {unit} is outside the plausible [{lo:g}, {hi:g}]")
 
 
-def refresh_objective(trial: Trial, extra: Sequence[float] = ()) -> None:
-    """Recompute the trial's objective, SEM and count from all its measurements."""
-    values = [m.value for m in trial.measurements] + list(extra)
-    if not values:
-        trial.objective = trial.objective_sem = None
-        trial.n_measurements = 0
-        return
-    trial.objective, trial.objective_sem = objective_from_repeats(values)
-    trial.n_measurements = len(values)
+# Built once: constructing a statement costs more than running it on SQLite, and a
+# measurement post is the service's most frequent write.
+_MEASUREMENTS = Measurement.__table__
+_REPEATS_OF = (
+    select(_MEASUREMENTS)
+    .where(_MEASUREMENTS.c.trial_id == bindparam("trial_id"))
+    .order_by(_MEASUREMENTS.c.id)
+)
+_INSERT_REPEAT = insert(_MEASUREMENTS).returning(_MEASUREMENTS.c.id)
+_KEYS = IdempotencyKey.__table__
+_KEY_SEEN = select(_KEYS.c.request_sha256, _KEYS.c.summary).where(
+    _KEYS.c.scope == bindparam("scope"), _KEYS.c.key == bindparam("key")
+)
+_INSERT_KEY = insert(_KEYS)
+_UNIT_OF = select(Experiment.__table__.c.objective_unit).where(
+    Experiment.__table__.c.id == bindparam("experiment_id")
+)
 
 
 def store_measurement(
@@ -75,24 +85,34 @@ def store_measurement(
     *,
     actor: Actor,
     source: str,
-) -> list[Measurement]:
-    """Append raw repeats (value, unit, note) to ``trial`` and refresh its objective."""
+) -> list[MeasurementRead]:
+    """Append raw repeats (value, unit, note) to ``trial`` (already flushed, so it has an id)
+    and refresh its objective, SEM and count from all its repeats.
+
+    Returns every repeat of the trial, oldest first, the new ones last.
+    """
     now = utcnow()
-    rows = [
-        Measurement(
-            trial_id=trial.id,
-            value=float(v),
-            unit=u,
-            note=note,
-            source=source,
-            created_by=actor.username,
-            created_at=now,
-        )
-        for v, u, note in values
+    db = session.connection()
+    repeats = [
+        MeasurementRead.model_validate(r, from_attributes=True)
+        for r in db.execute(_REPEATS_OF, {"trial_id": trial.id})
     ]
-    trial.measurements.extend(rows)  # loads the existing repeats once; inserted at next flush
+    for v, u, note in values:
+        row = {
+            "trial_id": trial.id,
+            "value": float(v),
+            "unit": u,
+            "note": note,
+            "source": source,
+            "created_by": actor.username,
+            "created_at": now,
+        }
+        repeats.append(MeasurementRead(id=db.execute(_INSERT_REPEAT, row).scalar_one(), **row))
+    if "measurements" in sa_inspect(trial).dict:  # a collection loaded earlier is now stale
+        session.expire(trial, ["measurements"])
     before = trial.objective
-    refresh_objective(trial)
+    trial.objective, trial.objective_sem = objective_from_repeats([m.value for m in repeats])
+    trial.n_measurements = len(repeats)
     trial.updated_at = now
     record(
         session,
@@ -110,7 +130,7 @@ def store_measurement(
         },
         now=now,
     )
-    return rows
+    return repeats
 
 
 def _request_sha256(trial_id: int, body: MeasurementsIn) -> str:
@@ -125,24 +145,21 @@ def add_measurements(
     *,
     idempotency_key: str | None,
     actor: Actor,
-) -> TrialDetail:
+) -> MeasuredTrial:
     """Record an operator's repeats for a trial, once per Idempotency-Key (committed).
 
     A queued or running trial without a worker's lease becomes completed; a completed one
     gets its objective recomputed; a needs_review one keeps its status (a person decides).
     """
-    from app.service.trials import active_lease, get_trial, read_trial
+    from app.service.trials import active_lease, get_trial
 
     if not idempotency_key or not (1 <= len(idempotency_key) <= 200):
         raise InvalidInput("the Idempotency-Key header is required (1-200 characters)")
     if not idempotency_key.isprintable():
         raise InvalidInput("the Idempotency-Key header must be printable text")
     digest = _request_sha256(trial_id, body)
-    seen = session.scalar(
-        select(IdempotencyKey).where(
-            IdempotencyKey.scope == "measurements", IdempotencyKey.key == idempotency_key
-        )
-    )
+    db = session.connection()
+    seen = db.execute(_KEY_SEEN, {"scope": "measurements", "key": idempotency_key}).first()
     if seen is not None:
         if seen.request_sha256 == digest:
             raise DuplicateRequest(
@@ -154,16 +171,16 @@ def add_measurements(
             f"({seen.summary}); use a new key"
         )
     trial = get_trial(session, trial_id, for_update=True)
-    exp: Experiment = trial.experiment
     if trial.status not in MEASURABLE:
         raise IllegalTransition(
             f"cannot add measurements: trial {trial.id} is {trial.status}"
             + (" (confirm and run it first)" if trial.status in lc.PENDING else ""),
             current=trial.status,
         )
+    unit = db.execute(_UNIT_OF, {"experiment_id": trial.experiment_id}).scalar_one()
     for i, rep in enumerate(body.repeats):
-        check_value(rep.value, rep.unit, exp.objective_unit, what=f"repeats[{i}].value")
-    rows = store_measurement(
+        check_value(rep.value, rep.unit, unit, what=f"repeats[{i}].value")
+    repeats = store_measurement(
         session,
         trial,
         [(r.value, r.unit, r.note) for r in body.repeats],
@@ -174,16 +191,20 @@ def add_measurements(
         lc.transition(
             session, trial, lc.COMPLETED, actor=actor.username, reason="measured by the operator"
         )
-    session.add(
-        IdempotencyKey(
-            scope="measurements",
-            key=idempotency_key,
-            request_sha256=digest,
-            summary=f"trial {trial.id}, {len(rows)} repeat(s)",
-            created_by=actor.username,
-        )
+    db.execute(
+        _INSERT_KEY,
+        {
+            "scope": "measurements",
+            "key": idempotency_key,
+            "request_sha256": digest,
+            "summary": f"trial {trial.id}, {len(body.repeats)} repeat(s)",
+            "created_by": actor.username,
+            "created_at": utcnow(),
+        },
     )
-    touch(exp)
-    detail = read_trial(session, trial.id)  # one flush (autoflush) and one commit in all
-    session.commit()
-    return detail
+    touch_id(session, trial.experiment_id)
+    reply = MeasuredTrial.build_measured(
+        trial, repeats, has_trajectory=has_trajectory(session, trial.id)
+    )
+    session.commit()  # one flush (the trial's new objective) and one commit in all
+    return reply

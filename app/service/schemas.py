@@ -321,6 +321,19 @@ class TrialRead(BaseModel):
         )
 
 
+class MeasuredTrial(TrialRead):
+    """A trial after a measurement post: its new objective and every raw repeat."""
+
+    measurements: list[MeasurementRead]
+
+    @classmethod
+    def build_measured(
+        cls, t: Trial, repeats: list[MeasurementRead], *, has_trajectory: bool
+    ) -> MeasuredTrial:
+        base = TrialRead.build(t, has_trajectory=has_trajectory)  # validated here, once
+        return cls.model_construct(**dict(base), measurements=repeats)
+
+
 class TrialDetail(TrialRead):
     """A trial with its raw measurements and its audit trail."""
 

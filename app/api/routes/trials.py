@@ -20,6 +20,7 @@ from app.api.deps import (
 from app.service import artifacts, measurements, runs, trials
 from app.service.schemas import (
     ConfirmIn,
+    MeasuredTrial,
     MeasurementsIn,
     PreviewJobRead,
     ReasonIn,
@@ -37,7 +38,7 @@ def get_trial(trial_id: int, session: ReadSession, _: Reader) -> Response:
     return json_response(trials.read_trial(session, trial_id))
 
 
-@router.post("/trials/{trial_id}/measurements", status_code=201, response_model=TrialDetail)
+@router.post("/trials/{trial_id}/measurements", status_code=201, response_model=MeasuredTrial)
 def add_measurements(
     trial_id: int,
     body: MeasurementsIn,
@@ -45,11 +46,14 @@ def add_measurements(
     actor: Operator,
     idempotency_key: str | None = Header(None, alias="Idempotency-Key"),
 ) -> Response:
-    """Record raw repeats (value, unit, note); the objective is their mean ± SEM."""
-    detail = measurements.add_measurements(
+    """Record raw repeats (value, unit, note); the objective is their mean ± SEM.
+
+    Replies with the trial and all its repeats (its audit trail is on ``GET /trials/{id}``).
+    """
+    measured = measurements.add_measurements(
         session, trial_id, body, idempotency_key=idempotency_key, actor=actor
     )
-    return json_response(detail, status_code=201)
+    return json_response(measured, status_code=201)
 
 
 @router.post("/trials/{trial_id}/fail")
