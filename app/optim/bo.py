@@ -91,7 +91,6 @@ class BOSettings:
     initial_design: str = "sobol"
     corner_prob: float = 0.5
     fit_maxiter: int | None = None
-    sample_around_best: bool = False
 
 
 def _check_settings(dim: int, settings: dict[str, Any]) -> BOSettings:
@@ -126,10 +125,6 @@ def _check_settings(dim: int, settings: dict[str, Any]) -> BOSettings:
         isinstance(s.n_initial, bool) or not isinstance(s.n_initial, int) or s.n_initial < 2
     ):
         raise SettingsError(f"n_initial must be an integer ≥ 2, got {s.n_initial!r}")
-    if not isinstance(s.sample_around_best, bool):
-        raise SettingsError(
-            f"sample_around_best must be true or false, got {s.sample_around_best!r}"
-        )
     if not 0.0 <= s.corner_prob <= 1.0:
         raise SettingsError(f"corner_prob must be in [0, 1], got {s.corner_prob!r}")
     if s.space == "levels" or s.initial_design == "corners":
@@ -255,8 +250,6 @@ class BayesOpt(Optimizer):
         fit_maxiter: cap on the GP fit's L-BFGS-B iterations (None: BoTorch's default).
         initial_design: "sobol", or "corners" (Sobol on the level grid with each level pushed
             to its lowest/highest value with probability ``corner_prob``: bang-bang actions).
-        sample_around_best: add BoTorch's perturbations of the best observations to the
-            acquisition optimiser's raw samples (``space="theta"``), clipped to the box.
     """
 
     method = "bo"
@@ -485,6 +478,6 @@ class BayesOpt(Optimizer):
                 num_restarts=s.num_restarts,
                 raw_samples=s.raw_samples,
                 sequential=q > 1,
-                options={"seed": seed, "sample_around_best": s.sample_around_best},
+                options={"seed": seed},
             )
         return cand.detach().numpy()

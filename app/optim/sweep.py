@@ -20,7 +20,14 @@ from typing import Any
 
 import numpy as np
 
-from app.optim import METHODS, NEEDS_LEVELS, Observation, SettingsError, make_optimizer
+from app.optim import (
+    DEFAULT_METHOD,
+    METHODS,
+    NEEDS_LEVELS,
+    Observation,
+    SettingsError,
+    make_optimizer,
+)
 
 TASKS = ("throw", "hammer", "tip_speed")
 # Rough cost per trial, cheapest first: a sweep runs larger P first, cheap methods first within
@@ -368,12 +375,73 @@ def best_at(
     return out
 
 
+def head_to_head(
+    rows: Sequence[dict[str, Any]], budget: int, reference: str
+) -> list[dict[str, Any]]:
+    """``reference`` vs each other method after ``budget`` trials, per (task, P): means over
+    seeds, their difference and Welch's two-sided t-test p-value (None with < 2 seeds a side)."""
+    from scipy.stats import ttest_ind
+
+    table = best_at(rows, [budget])
+    out = []
+    for (task, method, p, _b), peer in sorted(table.items()):
+        ref = table.get((task, reference, p, budget))
+        if method == reference or not ref:
+            continue
+        pval = None
+        if len(ref) >= 2 and len(peer) >= 2:
+            pval = float(ttest_ind(ref, peer, equal_var=False).pvalue)
+            pval = 1.0 if math.isnan(pval) else pval  # identical constant samples
+        out.append(
+            {
+                "task": task,
+                "levels": p,
+                "peer": method,
+                "ref_mean": float(np.mean(ref)),
+                "ref_n": len(ref),
+                "peer_mean": float(np.mean(peer)),
+                "peer_n": len(peer),
+                "diff": float(np.mean(ref) - np.mean(peer)),
+                "p": pval,
+            }
+        )
+    return out
+
+
+def head_to_head_markdown(rows: Sequence[dict[str, Any]], budget: int, reference: str) -> str:
+    """``head_to_head`` as a Markdown table (empty string when ``reference`` has no runs)."""
+    pairs = head_to_head(rows, budget, reference)
+    if not pairs:
+        return ""
+    lines = [
+        f"## {reference} against each peer after {budget} trials",
+        "",
+        "Difference of mean best-so-far (positive: "
+        f"{reference} ahead) and Welch's two-sided t-test over seeds.",
+        "",
+        f"| Task | P | Peer | {reference} (n) | peer (n) | difference | p |",
+        "|---|---:|---|---:|---:|---:|---:|",
+    ]
+    for h in pairs:
+        p = "–" if h["p"] is None else f"{h['p']:.3f}"
+        lines.append(
+            f"| {h['task']} | {h['levels']} | {h['peer']} | {h['ref_mean']:.3f} ({h['ref_n']}) "
+            f"| {h['peer_mean']:.3f} ({h['peer_n']}) | {h['diff']:+.3f} | {p} |"
+        )
+    return "\n".join([*lines, ""])
+
+
 def summary_markdown(
-    rows: Sequence[dict[str, Any]], budgets: Sequence[int], *, title: str = "Optimiser sweep"
+    rows: Sequence[dict[str, Any]],
+    budgets: Sequence[int],
+    *,
+    title: str = "Optimiser sweep",
+    reference: str | None = None,
 ) -> str:
     """The paper's table layout: per task, rows (method, trials), columns P; mean ± std (ddof 0)
     over seeds of the best objective so far. The best mean in each column is bold; a cell with
-    fewer seeds than the table's says so (n=k)."""
+    fewer seeds than the table's says so (n=k). With ``reference`` (a method), a head-to-head
+    table against every peer at the largest budget follows."""
     table = best_at(rows, budgets)
     tasks = sorted({k[0] for k in table}, key=lambda t: TASKS.index(t) if t in TASKS else 99)
     lines = [f"# {title}", ""]
@@ -410,6 +478,8 @@ def summary_markdown(
                 if any(c != "–" for c in cells):
                     lines.append(f"| {m} | {b} | " + " | ".join(cells) + " |")
         lines.append("")
+    if reference is not None:
+        lines.append(head_to_head_markdown(rows, max(budgets), reference))
     return "\n".join(lines)
 
 
@@ -467,7 +537,13 @@ def write_outputs(
     write_results_csv(out / "results.csv", rows)
     preset = specs[0].preset if specs else ""
     (out / "summary.md").write_text(
-        summary_markdown(rows, budgets, title=f"Optimiser sweep (sim preset {preset})") + "\n"
+        summary_markdown(
+            rows,
+            budgets,
+            title=f"Optimiser sweep (sim preset {preset})",
+            reference=DEFAULT_METHOD,
+        )
+        + "\n"
     )
     plot_curves(rows, out / "curves.png")
     return rows

@@ -194,6 +194,15 @@ def test_unknown_method_and_bad_observations_are_refused():
     assert set(METHODS) >= {"bo-lei", "bo-ucb", "cem", "random", "optuna-tpe", "optuna-gp"}
 
 
+def test_new_experiments_default_to_the_optimisers_default_method():
+    from app.optim import DEFAULT_METHOD
+    from app.service.schemas import ExperimentCreate
+
+    assert DEFAULT_METHOD in METHODS
+    spec = ExperimentCreate(name="x", task="throw", levels=5)
+    assert spec.method == DEFAULT_METHOD
+
+
 @pytest.mark.parametrize(("levels", "with_release"), [(2, False), (5, True), (3, True)])
 def test_level_space_matches_the_policy_decoding(levels, with_release):
     policy = Policy(levels=levels, with_release=with_release)

@@ -105,6 +105,39 @@ def test_summary_marks_the_best_mean_and_reports_each_budget():
     assert "| b | 3 | **3.500 ± 1.000** |" in text
 
 
+def _rows_of(finals: dict[str, list[float]], task: str = "hammer") -> list[dict]:
+    """Result rows where each (method, seed) run ends at the given best value."""
+    rows = []
+    for method, values in finals.items():
+        for seed, v in enumerate(values):
+            spec = sweep.RunSpec(method, task, 5, seed, 2)
+            rows += sweep.result_rows(
+                spec,
+                [
+                    {"trial": 1, "objective": v - 1.0, "wall_s": 0.1},
+                    {"trial": 2, "objective": v, "wall_s": 0.1},
+                ],
+            )
+    return rows
+
+
+def test_head_to_head_gives_the_difference_and_welch_p():
+    from scipy.stats import ttest_ind
+
+    ref, near, far = [3.0, 3.2, 2.9, 3.1], [3.1, 2.8, 3.0, 3.3], [1.0, 1.2, 0.9, 1.1, 1.0]
+    rows = _rows_of({"bo-x": ref, "near": near, "far": far, "solo": [9.0]})
+    pairs = {h["peer"]: h for h in sweep.head_to_head(rows, 2, "bo-x")}
+    assert set(pairs) == {"near", "far", "solo"}
+    assert pairs["far"]["diff"] == pytest.approx(np.mean(ref) - np.mean(far))
+    assert pairs["far"]["p"] == pytest.approx(ttest_ind(ref, far, equal_var=False).pvalue)
+    assert pairs["far"]["p"] < 1e-4 < 0.3 < pairs["near"]["p"]
+    assert pairs["solo"]["p"] is None and pairs["solo"]["peer_n"] == 1
+    text = sweep.summary_markdown(rows, [1, 2], reference="bo-x")
+    assert "## bo-x against each peer after 2 trials" in text
+    assert "| hammer | 5 | far | 3.050 (4) | 1.040 (5) | +2.010 |" in text
+    assert sweep.head_to_head(rows, 2, "missing") == []
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
