@@ -3,9 +3,11 @@
 API: sequential ``POST /api/trials/{id}/measurements`` (one repeat each, fresh
 Idempotency-Key) from one keep-alive client, spread over a set of trials, through
 auth, validation, idempotency check, objective/SEM update, audit row, version bump and
-the trial read back. Raw: ``session.add(Measurement(...)); session.commit()`` per row
+a reply with the trial and its repeats. Raw: ``session.add(Measurement(...)); session.commit()`` per row
 through ``app.db.make_engine`` with the same pragmas (WAL, ``--synchronous`` FULL by default,
-as the server) on the same database file, same trials. Alternating rounds; medians.
+as the server) on the same database file, same trials. Also timed: the service function
+alone (no HTTP) and ``GET /health`` from the same client (the HTTP floor of any call).
+Alternating rounds; medians.
 
     python benchmarks/service_measurements.py [--writes 300] [--rounds 3] [--clients 1]
         [--synchronous FULL|NORMAL]
@@ -54,6 +56,16 @@ def api_round(url: str, token: str, trial_ids: list[int], writes: int, clients: 
     for t in threads:
         t.join()
     return per * clients / (time.perf_counter() - t0)
+
+
+def floor_round(url: str, token: str, n: int) -> float:
+    """Round trips/s of ``GET /health`` (HTTP, auth-free, one read transaction) from the same
+    client: the most any API call can reach on this machine, whatever the route does."""
+    with HandfulClient(url, token) as c:
+        t0 = time.perf_counter()
+        for _ in range(n):
+            c.request("GET", "/health")
+        return n / (time.perf_counter() - t0)
 
 
 def raw_round(db_url: str, trial_ids: list[int], writes: int, synchronous: str) -> float:
@@ -126,18 +138,24 @@ def main() -> None:
             trial_ids += [t["id"] for t in api.suggest(exp["id"], n=100)]
         trial_ids = trial_ids[: args.trials]
         api_round(srv.url, srv.token, trial_ids, 20, 1)  # warm-up
-        api_rates, raw_rates, svc_rates = [], [], []
+        api_rates, raw_rates, svc_rates, floor_rates = [], [], [], []
         for _ in range(args.rounds):
             svc_rates.append(service_round(srv.db_url, trial_ids, args.writes, args.synchronous))
             api_rates.append(api_round(srv.url, srv.token, trial_ids, args.writes, args.clients))
             raw_rates.append(raw_round(srv.db_url, trial_ids, args.writes, args.synchronous))
+            floor_rates.append(floor_round(srv.url, srv.token, args.writes))
         api.close()
     a, r = statistics.median(api_rates), statistics.median(raw_rates)
     sv = statistics.median(svc_rates)
+    fl = statistics.median(floor_rates)
     print(
         f"synchronous={args.synchronous}  API {a:8.1f} writes/s ({args.clients} client(s))   "
         f"raw {r:8.1f} writes/s   "
         f"API/raw {a / r:6.3f}   (service alone, no HTTP: {sv:.1f} writes/s = {sv / r:.3f} of raw)"
+    )
+    print(
+        f"  per write: API {1e3 / a:.2f} ms, service alone {1e3 / sv:.2f} ms, raw {1e3 / r:.2f} ms;"
+        f" GET /health round trip {1e3 / fl:.2f} ms (= {fl / r:.3f} of raw: the HTTP floor)"
     )
     print(
         "  rounds API:", [round(x, 1) for x in api_rates], " raw:", [round(x, 1) for x in raw_rates]
@@ -153,6 +171,8 @@ def main() -> None:
                     "raw_rounds": raw_rates,
                     "service_per_s": sv,
                     "service_rounds": svc_rates,
+                    "health_per_s": fl,
+                    "health_rounds": floor_rates,
                     "clients": args.clients,
                     "synchronous": args.synchronous,
                     "writes": args.writes,
