@@ -24,6 +24,8 @@ BO_METHODS: dict[str, dict[str, Any]] = {
     "bo-lei": {"acquisition": "logei", "model_preset": "paper"},
     "bo-ucb": {"acquisition": "ucb", "model_preset": "paper", "kappa": 0.9},
     "bo-lei-default": {"acquisition": "logei", "model_preset": "default"},
+    # LogEI on today's default GP, searched in TuRBO-1's trust region around the best trial
+    "bo-turbo": {"acquisition": "logei", "model_preset": "default", "trust_region": True},
     # a variant: GP over the pressure levels, bang-bang-rich initial design,
     # acquisition optimised on the level grid (needs levels=P).
     "bo-handful": {

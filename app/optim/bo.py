@@ -91,6 +91,7 @@ class BOSettings:
     initial_design: str = "sobol"
     corner_prob: float = 0.5
     fit_maxiter: int | None = None
+    trust_region: bool = False
 
 
 def _check_settings(dim: int, settings: dict[str, Any]) -> BOSettings:
@@ -125,6 +126,10 @@ def _check_settings(dim: int, settings: dict[str, Any]) -> BOSettings:
         isinstance(s.n_initial, bool) or not isinstance(s.n_initial, int) or s.n_initial < 2
     ):
         raise SettingsError(f"n_initial must be an integer ≥ 2, got {s.n_initial!r}")
+    if not isinstance(s.trust_region, bool):
+        raise SettingsError(f"trust_region must be true or false, got {s.trust_region!r}")
+    if s.trust_region and s.space != "theta":
+        raise SettingsError("trust_region needs space='theta'")
     if not 0.0 <= s.corner_prob <= 1.0:
         raise SettingsError(f"corner_prob must be in [0, 1], got {s.corner_prob!r}")
     if s.space == "levels" or s.initial_design == "corners":
@@ -139,6 +144,50 @@ def _check_settings(dim: int, settings: dict[str, Any]) -> BOSettings:
                 f"dim {dim} must be horizon ({s.horizon}) or horizon + 1 (with release step)"
             )
     return s
+
+
+@dataclass(frozen=True)
+class TrustRegion:
+    """TuRBO-1's state (Eriksson et al., 2019): the box's base side ``length`` in [0,1]^D units
+    and the current run of successes or failures."""
+
+    length: float
+    successes: int
+    failures: int
+
+
+TR_LENGTH_INIT, TR_LENGTH_MIN, TR_LENGTH_MAX = 0.8, 0.5**7, 1.6
+TR_SUCCESS_TOL = 3
+
+
+def trust_region_state(y: np.ndarray, n_initial: int, dim: int) -> TrustRegion:
+    """Replay TuRBO-1's rule over the observations ``y`` (N,) in order, one per step.
+
+    After the ``n_initial`` design points, an observation that beats the best so far by
+    more than 1e-3·|best| is a success, anything else a failure. ``TR_SUCCESS_TOL``
+    successes in a row double the length (up to ``TR_LENGTH_MAX``); max(4, D) failures in a
+    row halve it; below ``TR_LENGTH_MIN`` the region restarts at ``TR_LENGTH_INIT``. A pure
+    function of the data, so a rebuilt optimiser has the same region as a live one.
+    """
+    fail_tol = max(4, dim)
+    length, successes, failures = TR_LENGTH_INIT, 0, 0
+    y = np.asarray(y, dtype=np.float64)
+    if len(y) <= n_initial:
+        return TrustRegion(length, 0, 0)
+    best = float(np.max(y[:n_initial]))
+    for v in y[n_initial:]:
+        if v > best + 1e-3 * abs(best):
+            successes, failures = successes + 1, 0
+        else:
+            successes, failures = 0, failures + 1
+        best = max(best, float(v))
+        if successes == TR_SUCCESS_TOL:
+            length, successes = min(2.0 * length, TR_LENGTH_MAX), 0
+        elif failures == fail_tol:
+            length, failures = length / 2.0, 0
+        if length < TR_LENGTH_MIN:
+            length, successes, failures = TR_LENGTH_INIT, 0, 0
+    return TrustRegion(length, successes, failures)
 
 
 class LevelSpace:
@@ -250,6 +299,8 @@ class BayesOpt(Optimizer):
         fit_maxiter: cap on the GP fit's L-BFGS-B iterations (None: BoTorch's default).
         initial_design: "sobol", or "corners" (Sobol on the level grid with each level pushed
             to its lowest/highest value with probability ``corner_prob``: bang-bang actions).
+        trust_region: optimise the acquisition in TuRBO-1's box around the best observation,
+            its sides scaled by the GP's lengthscales (see ``trust_region_state``).
     """
 
     method = "bo"
@@ -333,6 +384,19 @@ class BayesOpt(Optimizer):
         h = self.settings.horizon
         per_step = ls[: h * N_PAIRED].reshape(h, N_PAIRED).min(axis=1)
         return np.concatenate([per_step, ls[h * N_PAIRED :]])
+
+    def search_bounds(self) -> torch.Tensor:
+        """(2, dim) box the acquisition is optimised in: the unit box, or the trust region."""
+        if not self.settings.trust_region:
+            return _unit_bounds(self.dim)
+        x, y, _ = self.train_data()
+        state = trust_region_state(y, self.n_initial, self.dim)
+        centre = x[int(np.argmax(y))]
+        ls = self.feature_lengthscales()
+        weights = ls / np.exp(np.mean(np.log(ls)))  # geometric mean 1
+        half = 0.5 * state.length * weights
+        lo, hi = np.clip(centre - half, 0.0, 1.0), np.clip(centre + half, 0.0, 1.0)
+        return torch.as_tensor(np.stack([lo, hi]), dtype=DTYPE)
 
     # --- asking --------------------------------------------------------------------------------
     def _initial_points(self, start: int, count: int) -> np.ndarray:
@@ -473,7 +537,7 @@ class BayesOpt(Optimizer):
                 return self.space.to_theta(cand)
             cand, _ = optimize_acqf(
                 acq,
-                bounds=_unit_bounds(self.dim),
+                bounds=self.search_bounds(),
                 q=q,
                 num_restarts=s.num_restarts,
                 raw_samples=s.raw_samples,
