@@ -88,7 +88,7 @@ def test_ucb_uses_beta_equal_kappa_so_value_is_mean_plus_sqrt_kappa_sigma():
     np.testing.assert_allclose(ucb, mean + math.sqrt(0.9) * std, rtol=1e-6)
 
 
-@pytest.mark.parametrize("method", ["bo-lei", "bo-ucb"])
+@pytest.mark.parametrize("method", ["bo-lei", "bo-ucb", "bo-turbo"])
 def test_rebuilding_from_observations_gives_the_live_suggestion(method):
     opt = live(method, 3, 6, seed=3, n_initial=5, **FAST)
     rebuilt = make_optimizer(method, 3, seed=3, n_initial=5, **FAST)
@@ -98,6 +98,41 @@ def test_rebuilding_from_observations_gives_the_live_suggestion(method):
     np.testing.assert_array_equal(
         opt.suggest(2, pending=pending), rebuilt.suggest(2, pending=pending)
     )
+
+
+def test_trust_region_grows_on_successes_shrinks_on_failures_and_restarts():
+    from app.optim.bo import TR_LENGTH_INIT, TR_LENGTH_MAX, trust_region_state
+
+    init = [1.0, 2.0]  # n_initial = 2: best 2.0
+    assert trust_region_state(np.array(init), 2, 6).length == TR_LENGTH_INIT
+    up3 = trust_region_state(np.array([*init, 3.0, 4.0, 5.0]), 2, 6)
+    assert (up3.length, up3.successes) == (2 * TR_LENGTH_INIT, 0)
+    assert trust_region_state(np.array([*init, 3, 4, 5, 6, 7, 8]), 2, 6).length == TR_LENGTH_MAX
+    # a near-tie (within 1e-3 of the best) is a failure; D = 6 failures in a row halve it
+    flat = trust_region_state(np.array([*init, 2.0001, 0, 0, 0, 0, 0]), 2, 6)
+    assert (flat.length, flat.failures) == (TR_LENGTH_INIT / 2, 0)
+    five = trust_region_state(np.array([*init, 0, 0, 0, 0, 0]), 2, 6)
+    assert (five.length, five.failures) == (TR_LENGTH_INIT, 5)
+    # a success resets the failure run
+    mixed = trust_region_state(np.array([*init, 0, 0, 0, 0, 0, 9.0, 0]), 2, 6)
+    assert (mixed.length, mixed.failures, mixed.successes) == (TR_LENGTH_INIT, 1, 0)
+    # 7 halvings go below 0.5**7: the region restarts at its initial length
+    collapsed = trust_region_state(np.array(init + [0.0] * 6 * 7), 2, 6)
+    assert collapsed.length == TR_LENGTH_INIT
+    assert trust_region_state(np.array(init + [0.0] * 6 * 6), 2, 6).length == TR_LENGTH_INIT / 64
+
+
+def test_turbo_searches_a_box_around_the_best_observation():
+    opt = filled("bo-turbo", 3, 12, seed=2, n_initial=4, **FAST)
+    x, y, _ = opt.train_data()
+    lo, hi = opt.search_bounds().numpy()
+    best = x[int(np.argmax(y))]
+    assert ((lo <= best) & (best <= hi)).all() and (lo >= 0).all() and (hi <= 1).all()
+    assert ((hi - lo) < 1.0).any()  # narrower than the box in some dimension
+    out = opt.suggest(1)[0]
+    assert ((lo - 1e-9 <= out) & (out <= hi + 1e-9)).all()
+    plain = filled("bo-lei-default", 3, 12, seed=2, n_initial=4, **FAST)
+    np.testing.assert_array_equal(plain.search_bounds().numpy(), [[0, 0, 0], [1, 1, 1]])
 
 
 def test_a_pending_point_is_not_suggested_again():
@@ -169,6 +204,8 @@ def test_predict_is_in_objective_units():
         ({"num_restarts": 0}, "num_restarts"),
         ({"bogus": 1}, "bogus"),
         ({"space": "levels"}, "levels"),
+        ({"trust_region": "yes"}, "trust_region"),
+        ({"trust_region": True, "space": "levels", "levels": 3, "horizon": 3}, "trust_region"),
     ],
 )
 def test_bad_settings_raise_a_clear_value_error(settings, match):
