@@ -9,6 +9,7 @@ job="${1:-demo}"; shift || true
 
 need_apt=()
 command -v chromium >/dev/null 2>&1 || need_apt+=(chromium)
+ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1 || need_apt+=(postgresql)  # tests/api/test_postgres.py
 if [ "${#need_apt[@]}" -gt 0 ] && [ "$job" != "demo" ]; then
   SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
   $SUDO apt-get update -qq
