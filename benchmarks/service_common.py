@@ -3,22 +3,15 @@
 from __future__ import annotations
 
 import contextlib
-import os
-import socket
 import subprocess
-import sys
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-import httpx
-
 from app.db.migrate import upgrade
 from app.db.session import Database
+from app.devserver import ServerProcess, free_port
 from app.service.auth import add_user, create_token
-
-REPO = Path(__file__).resolve().parents[1]
 
 
 @dataclass
@@ -27,12 +20,6 @@ class BenchServer:
     db_url: str
     token: str
     proc: subprocess.Popen[bytes]
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 @contextlib.contextmanager
@@ -46,44 +33,12 @@ def bench_server(data_dir: Path, env: dict[str, str] | None = None) -> Iterator[
         add_user(s, "bench", "operator")
         token = create_token(s, "bench")
     db.dispose()
-    port = _free_port()
-    full_env = {
-        **os.environ,
-        "HANDFUL_DATA_DIR": str(data_dir),
-        "HANDFUL_DASHBOARD_ENABLED": "0",
-        **(env or {}),
-    }
-    log = open(data_dir / "server.log", "ab")  # noqa: SIM115
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "uvicorn",
-            "--factory",
-            "app.api.main:create_app",
-            "--host",
-            "127.0.0.1",
-            "--port",
-            str(port),
-            "--log-level",
-            "warning",
-        ],
-        cwd=REPO,
-        env=full_env,
-        stdout=log,
-        stderr=subprocess.STDOUT,
+    srv = ServerProcess(
+        data_dir, free_port(), env={"HANDFUL_DASHBOARD_ENABLED": "0", **(env or {})}
     )
-    url = f"http://127.0.0.1:{port}"
+    srv.start(timeout_s=60.0)
+    assert srv.proc is not None
     try:
-        for _ in range(600):
-            with contextlib.suppress(httpx.HTTPError):
-                if httpx.get(url + "/health", timeout=1).status_code == 200:
-                    break
-            if proc.poll() is not None:
-                raise RuntimeError("server exited; see " + str(data_dir / "server.log"))
-            time.sleep(0.1)
-        yield BenchServer(url=url, db_url=db_url, token=token, proc=proc)
+        yield BenchServer(url=srv.url, db_url=db_url, token=token, proc=srv.proc)
     finally:
-        proc.terminate()
-        proc.wait(timeout=30)
-        log.close()
+        srv.stop()

@@ -1,13 +1,13 @@
 """Measurement writes per second through the API against raw SQLAlchemy on the same file.
 
 API: sequential ``POST /api/trials/{id}/measurements`` (one repeat each, fresh
-Idempotency-Key) from one keep-alive client, spread over a set of trials, through
-auth, validation, idempotency check, objective/SEM update, audit row, version bump and
-a reply with the trial and its repeats. Raw: ``session.add(Measurement(...)); session.commit()`` per row
-through ``app.db.make_engine`` with the same pragmas (WAL, ``--synchronous`` FULL by default,
-as the server) on the same database file, same trials. Also timed: the service function
-alone (no HTTP) and ``GET /health`` from the same client (the HTTP floor of any call).
-Alternating rounds; medians.
+Idempotency-Key) from one keep-alive client, spread over a set of trials, through auth,
+validation, idempotency check, objective/SEM update, audit row, version bump and a reply
+with the trial and its repeats. Raw: ``session.add(Measurement(...)); session.commit()``
+per row through ``app.db.make_engine`` with the same pragmas (WAL, ``--synchronous`` FULL
+by default, as the server) on the same database file, same trials. Also timed: the
+service function alone (no HTTP) and ``GET /health`` from the same client (the HTTP floor
+of any call). Alternating rounds; medians.
 
     python benchmarks/service_measurements.py [--writes 300] [--rounds 3] [--clients 1]
         [--synchronous FULL|NORMAL]

@@ -23,36 +23,21 @@ Fixtures (reuse them; they are documented for the workers and dashboard tests):
 
 from __future__ import annotations
 
-import contextlib
-import os
 import shutil
-import signal
-import socket
-import subprocess
-import sys
-import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import httpx
 import pytest
 
 from app.client import HandfulClient
 from app.db.migrate import upgrade
 from app.db.session import Database
+from app.devserver import ServerProcess, free_port
 from app.service.auth import add_user, create_token
 
-REPO = Path(__file__).resolve().parents[1]
 ROLES = ("operator", "viewer", "worker")
 PASSWORD = "correct horse battery"  # every fixture user's password
-
-
-def free_port() -> int:
-    """A TCP port on 127.0.0.1 that was free a moment ago."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def sqlite_url(path: Path) -> str:
@@ -82,24 +67,11 @@ def seed_users(url: str) -> dict[str, str]:
 
 
 @dataclass
-class ServerHandle:
-    """A uvicorn subprocess serving handful over ``data_dir`` on 127.0.0.1:``port``."""
+class ServerHandle(ServerProcess):
+    """A ``ServerProcess`` over a migrated SQLite file, with users and their tokens."""
 
-    data_dir: Path
-    port: int
-    tokens: dict[str, str]
-    env: dict[str, str]
-    use_cli: bool = False
-    proc: subprocess.Popen[bytes] | None = None
-    log_path: Path = field(init=False)
+    tokens: dict[str, str] = field(default_factory=dict)
     _clients: list[HandfulClient] = field(default_factory=list)
-
-    def __post_init__(self) -> None:
-        self.log_path = self.data_dir / "server.log"
-
-    @property
-    def url(self) -> str:
-        return f"http://127.0.0.1:{self.port}"
 
     @property
     def db_url(self) -> str:
@@ -110,76 +82,6 @@ class ServerHandle:
         c = HandfulClient(self.url, self.tokens[role] if role else None, **kwargs)  # type: ignore[arg-type]
         self._clients.append(c)
         return c
-
-    def start(self, timeout_s: float = 90.0) -> None:
-        """Start (or restart) the server and wait until /health answers."""
-        assert self.proc is None or self.proc.poll() is not None, "already running"
-        env = {**os.environ, **self.env, "HANDFUL_DATA_DIR": str(self.data_dir)}
-        if self.use_cli:
-            cmd = [
-                sys.executable,
-                "-m",
-                "app.cli",
-                "serve",
-                "--host",
-                "127.0.0.1",
-                "--port",
-                str(self.port),
-                "--log-level",
-                "warning",
-            ]
-        else:
-            cmd = [
-                sys.executable,
-                "-m",
-                "uvicorn",
-                "--factory",
-                "app.api.main:create_app",
-                "--host",
-                "127.0.0.1",
-                "--port",
-                str(self.port),
-                "--log-level",
-                "warning",
-            ]
-        log = open(self.log_path, "ab")  # noqa: SIM115 (the child owns it)
-        self.proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=log, stderr=subprocess.STDOUT)
-        log.close()
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            if self.proc.poll() is not None:
-                raise RuntimeError(f"server exited with {self.proc.returncode}:\n{self.log_tail()}")
-            with contextlib.suppress(httpx.HTTPError):
-                if httpx.get(self.url + "/health", timeout=2.0).status_code == 200:
-                    return
-            time.sleep(0.1)
-        self.stop(kill=True)
-        raise RuntimeError(f"server not healthy after {timeout_s} s:\n{self.log_tail()}")
-
-    def kill9(self) -> None:
-        """SIGKILL the server (no shutdown hooks, no flushing) and reap it."""
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGKILL)
-            self.proc.wait(timeout=30)
-
-    def stop(self, kill: bool = False) -> None:
-        """Stop the server (SIGTERM, then SIGKILL after 15 s)."""
-        if self.proc is None or self.proc.poll() is not None:
-            return
-        if kill:
-            self.kill9()
-            return
-        self.proc.terminate()
-        try:
-            self.proc.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            self.kill9()
-
-    def log_tail(self, n: int = 4000) -> str:
-        try:
-            return self.log_path.read_text(errors="replace")[-n:]
-        except OSError:
-            return ""
 
     def close(self) -> None:
         for c in self._clients:

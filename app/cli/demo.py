@@ -26,6 +26,8 @@ from typing import Annotated, Any
 
 import typer
 
+from app.devserver import free_port, wait_healthy
+
 log = logging.getLogger("handful.demo")
 
 OPERATOR, WORKER = "demo-operator", "demo-worker"
@@ -52,12 +54,6 @@ HARDWARE_EXPERIMENT = {
     "seed": 2,
     "notes": "Started by `handful demo`: confirm each trial; the stand-in robot then runs it.",
 }
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _port_free(port: int) -> bool:
@@ -142,20 +138,6 @@ class _Processes:
                 p.wait()
 
 
-def _wait_healthy(url: str, procs: _Processes, timeout_s: float) -> None:
-    import httpx
-
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if "server" in procs.dead():
-            raise RuntimeError("the server exited during start-up")
-        with contextlib.suppress(httpx.HTTPError):
-            if httpx.get(f"{url}/health", timeout=2.0).status_code == 200:
-                return
-        time.sleep(0.2)
-    raise RuntimeError(f"the server did not answer /health within {timeout_s:.0f} s")
-
-
 def _ensure_experiments(api: Any) -> tuple[int, int]:
     """The demo's sim and hardware experiments: reuse them from an earlier run, else create."""
     found = {e["name"]: e["id"] for e in api.list_experiments()}
@@ -226,7 +208,7 @@ def demo(
     url = f"http://127.0.0.1:{port}"
     server_env = {
         "HANDFUL_DATA_DIR": str(data_dir),
-        "HANDFUL_VISER_PORT": str(_free_port()),
+        "HANDFUL_VISER_PORT": str(free_port()),
         "HANDFUL_LEASE_SECONDS": "30",
     }
     procs = _Processes(log_dir)
@@ -245,7 +227,7 @@ def demo(
             ["serve", "--host", "127.0.0.1", "--port", str(port), "--data-dir", str(data_dir)],
             server_env,
         )
-        _wait_healthy(url, procs, timeout_s=120.0)
+        wait_healthy(url, procs.procs["server"], timeout_s=120.0, log_path=log_dir / "server.log")
         api = HandfulClient(url, token=operator_token, timeout=120.0)
         sim_id, hw_id = _ensure_experiments(api)
         worker_args = ["--server", url, "--token", worker_token]
