@@ -92,6 +92,7 @@ class BOSettings:
     corner_prob: float = 0.5
     fit_maxiter: int | None = None
     trust_region: bool = False
+    distinct: bool = False
 
 
 def _check_settings(dim: int, settings: dict[str, Any]) -> BOSettings:
@@ -130,12 +131,15 @@ def _check_settings(dim: int, settings: dict[str, Any]) -> BOSettings:
         raise SettingsError(f"trust_region must be true or false, got {s.trust_region!r}")
     if s.trust_region and s.space != "theta":
         raise SettingsError("trust_region needs space='theta'")
+    if not isinstance(s.distinct, bool):
+        raise SettingsError(f"distinct must be true or false, got {s.distinct!r}")
     if not 0.0 <= s.corner_prob <= 1.0:
         raise SettingsError(f"corner_prob must be in [0, 1], got {s.corner_prob!r}")
-    if s.space == "levels" or s.initial_design == "corners":
+    if s.space == "levels" or s.initial_design == "corners" or s.distinct:
         if s.levels is None or isinstance(s.levels, bool) or not isinstance(s.levels, int):
             raise SettingsError(
-                "space='levels' and initial_design='corners' need levels=P (an integer ≥ 2)"
+                "space='levels', initial_design='corners' and distinct need levels=P "
+                "(an integer ≥ 2)"
             )
         if s.levels < 2:
             raise SettingsError(f"levels (P) must be an integer ≥ 2, got {s.levels}")
@@ -215,6 +219,17 @@ class LevelSpace:
             r = np.minimum(np.floor(th[:, self.horizon] * self.horizon), self.horizon - 1)
             feats = np.concatenate([feats, (r / max(self.horizon - 1, 1))[:, None]], axis=1)
         return feats
+
+    def keys(self, theta: np.ndarray) -> list[tuple[int, ...]]:
+        """(N, D) θ → one key per row: its H action indices (and release step), the schedule
+        ``Policy.decode`` gives. Equal keys ⇔ the same pressure schedule and release."""
+        th = np.atleast_2d(theta)
+        a = np.minimum(np.floor(th[:, : self.horizon] * self.n_actions), self.n_actions - 1)
+        cols = [a.astype(np.int64)]
+        if self.with_release:
+            r = np.minimum(np.floor(th[:, self.horizon] * self.horizon), self.horizon - 1)
+            cols.append(r.astype(np.int64)[:, None])
+        return [tuple(int(v) for v in row) for row in np.concatenate(cols, axis=1)]
 
     def to_theta(self, feats: np.ndarray) -> np.ndarray:
         """(N, F) features (snapped to the grid) → (N, D) θ at the centres of their bins."""
@@ -301,6 +316,9 @@ class BayesOpt(Optimizer):
             to its lowest/highest value with probability ``corner_prob``: bang-bang actions).
         trust_region: optimise the acquisition in TuRBO-1's box around the best observation,
             its sides scaled by the GP's lengthscales (see ``trust_region_state``).
+        distinct: never suggest θ whose schedule (action indices and release step, see
+            ``LevelSpace.keys``; needs ``levels``) was observed or is pending: the acquisition's
+            best local optimum with a new schedule, else the best new one of its raw samples.
     """
 
     method = "bo"
@@ -311,7 +329,7 @@ class BayesOpt(Optimizer):
         s = self.settings
         self.n_initial = s.n_initial if s.n_initial is not None else self.dim + 1
         self.space: LevelSpace | None = None
-        if s.space == "levels" or s.initial_design == "corners":
+        if s.space == "levels" or s.initial_design == "corners" or s.distinct:
             self.space = LevelSpace(s.levels or 2, s.horizon, self.dim == s.horizon + 1)
         self._model: SingleTaskGP | None = None
         self._model_n = -1
@@ -421,12 +439,34 @@ class BayesOpt(Optimizer):
             u[:, -1] = np.floor(u[:, -1] * h).clip(0, h - 1) / max(h - 1, 1)
         return self.space.to_theta(u)
 
+    def _keys(self, theta: np.ndarray) -> list[tuple[Any, ...]]:
+        """Identity of each θ row: its schedule when the levels are known, else θ itself."""
+        if self.space is not None:
+            return list(self.space.keys(theta))
+        return [tuple(np.round(row, 12).tolist()) for row in np.atleast_2d(theta)]
+
+    def _design_points(self, start: int, count: int, pending: np.ndarray) -> np.ndarray:
+        """Design points ``start ..`` (count, dim), each replaced by the next one of the
+        sequence when it is already observed, pending or picked (an abandoned design trial
+        shifts the count, so point ``start`` may be one still pending)."""
+        pts = self._initial_points(start, count)
+        taken = set(self._keys(self.train_data()[0]))
+        if len(pending):
+            taken.update(self._keys(pending))
+        nxt = start + count
+        for i, key in enumerate(self._keys(pts)):
+            while key in taken and nxt < start + count + 10_000:
+                pts[i] = self._initial_points(nxt, 1)[0]
+                key, nxt = self._keys(pts[i])[0], nxt + 1
+            taken.add(key)
+        return pts
+
     def _suggest(self, n: int, pending: np.ndarray) -> np.ndarray:
         start = self.n_observed + len(pending)
         n_init = max(0, min(n, self.n_initial - start))
         if self.n_observed < 2:
             n_init = n
-        out = [self._initial_points(start, n_init)] if n_init else []
+        out = [self._design_points(start, n_init, pending)] if n_init else []
         if n_init < n:
             pend = np.concatenate([pending, *out]) if out else pending
             out.append(self._acquire(n - n_init, pend))
@@ -535,6 +575,11 @@ class BayesOpt(Optimizer):
                     x_seen = torch.cat([x_seen, pend])
                 cand = self._grid_search(acq, q, x_seen, np.random.default_rng(seed))
                 return self.space.to_theta(cand)
+            if s.distinct:
+                seen = self.train_data()[0]
+                if len(pending):
+                    seen = np.concatenate([seen, pending])
+                return self._distinct_search(acq, q, seed, seen)
             cand, _ = optimize_acqf(
                 acq,
                 bounds=self.search_bounds(),
@@ -545,3 +590,54 @@ class BayesOpt(Optimizer):
                 options={"seed": seed},
             )
         return cand.detach().numpy()
+
+    def _distinct_search(
+        self, acq: AcquisitionFunction, q: int, seed: int, seen_theta: np.ndarray
+    ) -> np.ndarray:
+        """(q, dim) maximisers of ``acq``, each with a schedule not in ``seen_theta`` (N, dim)
+        nor picked before it; picks after the first are pending for the next (MC acqs)."""
+        from botorch.utils.sampling import draw_sobol_samples
+
+        assert self.space is not None
+        s = self.settings
+        bounds = self.search_bounds()
+        seen = set(self.space.keys(seen_theta))
+        picks: list[np.ndarray] = []
+        for k in range(q):
+            cands, vals = optimize_acqf(
+                acq,
+                bounds=bounds,
+                q=1,
+                num_restarts=s.num_restarts,
+                raw_samples=s.raw_samples,
+                return_best_only=False,
+                options={"seed": seed + k},
+            )
+            pool, pool_vals = cands.detach().reshape(-1, self.dim), vals.detach().reshape(-1)
+            chosen = self._best_new(pool, pool_vals, seen)
+            if chosen is None:  # every local optimum is a schedule already run or pending
+                raw = draw_sobol_samples(bounds, n=s.raw_samples, q=1, seed=seed + k)
+                with torch.no_grad():
+                    raw_vals = acq(raw)
+                chosen = self._best_new(raw.reshape(-1, self.dim), raw_vals.reshape(-1), seen)
+            if chosen is None:
+                raise SettingsError("no schedule left that was not already observed or pending")
+            seen.update(self.space.keys(chosen[None]))
+            picks.append(chosen)
+            if k + 1 < q and hasattr(acq, "set_X_pending"):
+                new = torch.as_tensor(chosen[None], dtype=DTYPE)
+                prev = acq.X_pending
+                acq.set_X_pending(new if prev is None else torch.cat([prev, new]))
+        return np.stack(picks)
+
+    def _best_new(
+        self, x: torch.Tensor, vals: torch.Tensor, seen: set[tuple[int, ...]]
+    ) -> np.ndarray | None:
+        """The highest-valued row of ``x`` (n, dim) whose schedule key is not in ``seen``."""
+        assert self.space is not None
+        xs = x.numpy()
+        keys = self.space.keys(xs)
+        for i in torch.argsort(vals, descending=True).tolist():
+            if keys[i] not in seen:
+                return xs[i].copy()
+        return None

@@ -100,6 +100,38 @@ def test_rebuilding_from_observations_gives_the_live_suggestion(method):
     )
 
 
+def test_distinct_never_suggests_a_schedule_already_run_or_pending():
+    # |θ − ½| summed rewards the box's corners; at P = 2, H = 4 the corners of θ are schedules
+    # a plain θ-space GP keeps coming back to (θ 0.001 and 0.002 decode to the same action).
+    space = LevelSpace(2, 4, False)
+    f = lambda th: float(np.abs(th - 0.5).sum())  # noqa: E731
+    settings = {"levels": 2, "horizon": 4, "n_initial": 4, **FAST}
+    opt = make_optimizer("bo-handful", 4, seed=0, **settings)
+    pending = None
+    for _ in range(14):
+        x = opt.suggest(2, pending=pending) if pending is not None else opt.suggest(1)
+        keys = space.keys(x)
+        assert len(set(keys)) == len(keys)
+        assert not set(keys) & set(space.keys(opt.train_data()[0]))
+        if pending is not None:
+            assert not set(keys) & set(space.keys(pending))
+        opt.observe(x[0], f(x[0]))
+        pending = x[1:] if len(x) > 1 else np.array([[0.999, 0.999, 0.001, 0.5]])
+    assert len(set(space.keys(opt.train_data()[0]))) == opt.n_observed == 14
+    rebuilt = make_optimizer("bo-handful", 4, seed=0, **settings)
+    rebuilt.observe_many(opt.observations)
+    np.testing.assert_array_equal(opt.suggest(1), rebuilt.suggest(1))
+
+
+def test_level_space_keys_are_the_decoded_schedule():
+    policy = Policy(levels=3, with_release=True)
+    space = LevelSpace(3, 10, True)
+    theta = np.random.default_rng(4).random((50, 11))
+    for th, key in zip(theta, space.keys(theta), strict=True):
+        d = policy.decode(th)
+        assert key == (*d.action_indices.tolist(), d.release_step - 1)  # 1-based step
+
+
 def test_trust_region_grows_on_successes_shrinks_on_failures_and_restarts():
     from app.optim.bo import TR_LENGTH_INIT, TR_LENGTH_MAX, trust_region_state
 
@@ -141,6 +173,11 @@ def test_a_pending_point_is_not_suggested_again():
     first = opt.suggest(1)
     second = opt.suggest(1, pending=first)
     assert np.abs(first - second).max() > 1e-3
+    # An abandoned design trial: of the pair (a, b), only b is pending; b is not given again.
+    a_b = opt.suggest(2)
+    again = opt.suggest(1, pending=a_b[1:])
+    assert np.abs(again - a_b[1]).max() > 1e-3
+    np.testing.assert_array_equal(again, opt.suggest(1, pending=a_b[1:]))  # still deterministic
     # GP phase: qLogNEI with the pending point fantasised.
     opt = filled("bo-lei", 3, 8, seed=1, **FAST)
     x1 = opt.suggest(1)
@@ -205,6 +242,7 @@ def test_predict_is_in_objective_units():
         ({"bogus": 1}, "bogus"),
         ({"space": "levels"}, "levels"),
         ({"trust_region": "yes"}, "trust_region"),
+        ({"distinct": True}, "levels"),
         ({"trust_region": True, "space": "levels", "levels": 3, "horizon": 3}, "trust_region"),
     ],
 )
@@ -261,12 +299,12 @@ def test_level_space_matches_the_policy_decoding(levels, with_release):
 
 def test_handful_bo_suggests_unseen_grid_points_and_rebuilds_identically():
     settings = {"levels": 2, "raw_samples": 64, "num_restarts": 2, "fit_maxiter": 20}
-    opt = live("bo-handful", 11, 13, seed=2, **settings)
+    opt = live("bo-levels", 11, 13, seed=2, **settings)
     space = LevelSpace(2, 10, True)
     seen = {tuple(r) for r in space.to_features(opt.train_data()[0])}
     x = opt.suggest(1)
     assert tuple(space.to_features(x)[0]) not in seen
-    rebuilt = make_optimizer("bo-handful", 11, seed=2, **settings)
+    rebuilt = make_optimizer("bo-levels", 11, seed=2, **settings)
     rebuilt.observe_many([Observation(o.theta, o.value) for o in opt.observations])
     np.testing.assert_array_equal(x, rebuilt.suggest(1))
     x2 = opt.suggest(1, pending=x)
