@@ -26,12 +26,11 @@ BO_METHODS: dict[str, dict[str, Any]] = {
     "bo-lei-default": {"acquisition": "logei", "model_preset": "default"},
     # LogEI on today's default GP, searched in TuRBO-1's trust region around the best trial
     "bo-turbo": {"acquisition": "logei", "model_preset": "default", "trust_region": True},
-    # handful's default: LogEI on today's default GP in θ space, never re-running a schedule
-    # already observed or pending (needs levels=P to decode θ)
-    "bo-handful": {"acquisition": "logei", "model_preset": "default", "distinct": True},
-    # a variant: GP over the pressure levels, bang-bang-rich initial design,
-    # acquisition optimised on the level grid (needs levels=P).
-    "bo-levels": {
+    # bo-lei-default that never suggests a schedule already observed or pending (needs levels=P)
+    "bo-lei-distinct": {"acquisition": "logei", "model_preset": "default", "distinct": True},
+    # handful's default: GP over the pressure levels, bang-bang-rich initial design,
+    # acquisition optimised on the level grid, never an action sequence seen (needs levels=P)
+    "bo-handful": {
         "acquisition": "logei",
         "model_preset": "default",
         "space": "levels",
@@ -46,7 +45,7 @@ DEFAULT_METHOD = "bo-handful"
 BASELINE_METHODS = ("cem", "random", "optuna-tpe", "optuna-gp", "cmaes")
 METHODS: tuple[str, ...] = (*BO_METHODS, *BASELINE_METHODS)
 # Methods whose settings need the policy's P (levels=…); the benchmark passes it.
-NEEDS_LEVELS = frozenset({"bo-handful", "bo-levels"})
+NEEDS_LEVELS = frozenset({"bo-handful", "bo-lei-distinct"})
 
 
 def make_optimizer(method: str, dim: int, *, seed: int, **settings: Any) -> Optimizer:

@@ -106,7 +106,7 @@ def test_distinct_never_suggests_a_schedule_already_run_or_pending():
     space = LevelSpace(2, 4, False)
     f = lambda th: float(np.abs(th - 0.5).sum())  # noqa: E731
     settings = {"levels": 2, "horizon": 4, "n_initial": 4, **FAST}
-    opt = make_optimizer("bo-handful", 4, seed=0, **settings)
+    opt = make_optimizer("bo-lei-distinct", 4, seed=0, **settings)
     pending = None
     for _ in range(14):
         x = opt.suggest(2, pending=pending) if pending is not None else opt.suggest(1)
@@ -118,7 +118,7 @@ def test_distinct_never_suggests_a_schedule_already_run_or_pending():
         opt.observe(x[0], f(x[0]))
         pending = x[1:] if len(x) > 1 else np.array([[0.999, 0.999, 0.001, 0.5]])
     assert len(set(space.keys(opt.train_data()[0]))) == opt.n_observed == 14
-    rebuilt = make_optimizer("bo-handful", 4, seed=0, **settings)
+    rebuilt = make_optimizer("bo-lei-distinct", 4, seed=0, **settings)
     rebuilt.observe_many(opt.observations)
     np.testing.assert_array_equal(opt.suggest(1), rebuilt.suggest(1))
 
@@ -299,12 +299,12 @@ def test_level_space_matches_the_policy_decoding(levels, with_release):
 
 def test_handful_bo_suggests_unseen_grid_points_and_rebuilds_identically():
     settings = {"levels": 2, "raw_samples": 64, "num_restarts": 2, "fit_maxiter": 20}
-    opt = live("bo-levels", 11, 13, seed=2, **settings)
+    opt = live("bo-handful", 11, 13, seed=2, **settings)
     space = LevelSpace(2, 10, True)
     seen = {tuple(r) for r in space.to_features(opt.train_data()[0])}
     x = opt.suggest(1)
     assert tuple(space.to_features(x)[0]) not in seen
-    rebuilt = make_optimizer("bo-levels", 11, seed=2, **settings)
+    rebuilt = make_optimizer("bo-handful", 11, seed=2, **settings)
     rebuilt.observe_many([Observation(o.theta, o.value) for o in opt.observations])
     np.testing.assert_array_equal(x, rebuilt.suggest(1))
     x2 = opt.suggest(1, pending=x)
