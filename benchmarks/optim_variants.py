@@ -15,10 +15,10 @@ from app.optim import sweep
 
 # label → (method, settings)
 VARIANTS: dict[str, tuple[str, dict]] = {
-    "lv-default-corners": ("bo-handful", {}),
-    "lv-default-sobol": ("bo-handful", {"initial_design": "sobol"}),
-    "lv-paper-corners": ("bo-handful", {"model_preset": "paper", "fit_maxiter": None}),
-    "lv-default-corners-ucb": ("bo-handful", {"acquisition": "ucb"}),
+    "lv-default-corners": ("bo-levels", {}),
+    "lv-default-sobol": ("bo-levels", {"initial_design": "sobol"}),
+    "lv-paper-corners": ("bo-levels", {"model_preset": "paper", "fit_maxiter": None}),
+    "lv-default-corners-ucb": ("bo-levels", {"acquisition": "ucb"}),
     "theta-paper-corners": ("bo-lei", {"initial_design": "corners"}),
 }
 PEERS = ("bo-lei", "cem", "random", "optuna-tpe", "optuna-gp", "cmaes")

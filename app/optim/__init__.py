@@ -28,9 +28,9 @@ BO_METHODS: dict[str, dict[str, Any]] = {
     "bo-turbo": {"acquisition": "logei", "model_preset": "default", "trust_region": True},
     # bo-lei-default that never suggests a schedule already observed or pending (needs levels=P)
     "bo-lei-distinct": {"acquisition": "logei", "model_preset": "default", "distinct": True},
-    # handful's default: GP over the pressure levels, bang-bang-rich initial design,
-    # acquisition optimised on the level grid, never an action sequence seen (needs levels=P)
-    "bo-handful": {
+    # GP over the pressure levels, bang-bang-rich initial design, acquisition optimised on the
+    # level grid, never an action sequence seen (needs levels=P)
+    "bo-levels": {
         "acquisition": "logei",
         "model_preset": "default",
         "space": "levels",
@@ -41,11 +41,11 @@ BO_METHODS: dict[str, dict[str, Any]] = {
     },
 }
 #: the method a new experiment gets unless it names one (see docs/bench/optim.md)
-DEFAULT_METHOD = "bo-handful"
+DEFAULT_METHOD = "bo-lei-default"
 BASELINE_METHODS = ("cem", "random", "optuna-tpe", "optuna-gp", "cmaes")
 METHODS: tuple[str, ...] = (*BO_METHODS, *BASELINE_METHODS)
 # Methods whose settings need the policy's P (levels=…); the benchmark passes it.
-NEEDS_LEVELS = frozenset({"bo-handful", "bo-lei-distinct"})
+NEEDS_LEVELS = frozenset({"bo-levels", "bo-lei-distinct"})
 
 
 def make_optimizer(method: str, dim: int, *, seed: int, **settings: Any) -> Optimizer:

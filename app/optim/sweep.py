@@ -33,7 +33,7 @@ TASKS = ("throw", "hammer", "tip_speed")
 # Rough cost per trial, cheapest first: a sweep runs larger P first, cheap methods first within
 # a P, so an interrupted sweep still leaves complete rows for them.
 _COST_RANK = {
-    "random": 0, "cem": 0, "cmaes": 0, "optuna-tpe": 1, "bo-lei": 2, "bo-handful": 3,
+    "random": 0, "cem": 0, "cmaes": 0, "optuna-tpe": 1, "bo-lei": 2, "bo-levels": 3,
     "optuna-gp": 4, "bo-ucb": 5, "bo-lei-default": 6, "bo-turbo": 6, "bo-lei-distinct": 6,
 }  # fmt: skip
 RESULT_COLUMNS = ("method", "task", "levels", "seed", "trial", "objective", "best_so_far", "wall_s")

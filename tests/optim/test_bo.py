@@ -299,12 +299,12 @@ def test_level_space_matches_the_policy_decoding(levels, with_release):
 
 def test_handful_bo_suggests_unseen_grid_points_and_rebuilds_identically():
     settings = {"levels": 2, "raw_samples": 64, "num_restarts": 2, "fit_maxiter": 20}
-    opt = live("bo-handful", 11, 13, seed=2, **settings)
+    opt = live("bo-levels", 11, 13, seed=2, **settings)
     space = LevelSpace(2, 10, True)
     seen = {tuple(r) for r in space.to_features(opt.train_data()[0])}
     x = opt.suggest(1)
     assert tuple(space.to_features(x)[0]) not in seen
-    rebuilt = make_optimizer("bo-handful", 11, seed=2, **settings)
+    rebuilt = make_optimizer("bo-levels", 11, seed=2, **settings)
     rebuilt.observe_many([Observation(o.theta, o.value) for o in opt.observations])
     np.testing.assert_array_equal(x, rebuilt.suggest(1))
     x2 = opt.suggest(1, pending=x)

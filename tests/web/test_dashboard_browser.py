@@ -100,7 +100,7 @@ def test_operator_loop_on_the_standin_robot(
     experiment_id = int(page.url.rsplit("/", 1)[1])
     experiment = api.get_experiment(experiment_id)
     assert (experiment["task"], experiment["target"]) == ("throw", "hardware")
-    assert experiment["method"] == "bo-handful"  # the form starts on handful's default
+    assert experiment["method"] == "bo-lei-default"  # the form starts on handful's default
     assert experiment["limits"]["max_step_pa"] == pytest.approx(30_000.0)
 
     # 3. get a suggestion: the next-trial card shows its schedule as a 12 × H heatmap
