@@ -31,7 +31,8 @@ def main() -> None:
         parts.append(demote((DOCS / "bench" / f"{name}.md").read_text()))
     parts.append(
         "## Best-so-far curves of the optimiser sweep\n\n"
-        "![best-so-far curves, P = 2 and 5, both tasks](bench/optim/curves.png)\n"
+        "![best-so-far curves, P = 2 and 5, both tasks (seeds per method in the legend)]"
+        "(bench/optim/curves.png)\n"
     )
     target.write_text("\n---\n\n".join(parts))
 
