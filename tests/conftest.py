@@ -24,6 +24,7 @@ Fixtures (reuse them; they are documented for the workers and dashboard tests):
 from __future__ import annotations
 
 import shutil
+import threading
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -87,6 +88,26 @@ class ServerHandle(ServerProcess):
         for c in self._clients:
             c.close()
         self.stop(kill=False)
+
+
+def claim_until_empty(handle: ServerHandle, n_workers: int, target: str = "sim") -> list[int]:
+    """``n_workers`` threads, each with its own worker client, claim 2 trials at a time until
+    none is left; the ids of every trial handed out (a trial handed out twice appears twice)."""
+    got: list[int] = []
+    lock = threading.Lock()
+
+    def claim_all(i: int) -> None:
+        c = handle.client("worker")
+        while claims := c.claim(f"w{i}", target, max_trials=2):
+            with lock:
+                got.extend(x["trial"]["id"] for x in claims)
+
+    threads = [threading.Thread(target=claim_all, args=(i,)) for i in range(n_workers)]
+    for th in threads:
+        th.start()
+    for th in threads:
+        th.join()
+    return got
 
 
 def _new_server(

@@ -11,7 +11,6 @@ import os
 import pwd
 import shutil
 import subprocess
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -23,7 +22,7 @@ from app.client import HandfulAPIError
 from app.db.migrate import downgrade, upgrade
 from app.db.session import Database
 
-from ..conftest import ServerHandle, free_port, seed_users
+from ..conftest import ServerHandle, claim_until_empty, free_port, seed_users
 
 pytestmark = pytest.mark.slow
 
@@ -132,20 +131,7 @@ def test_the_api_runs_on_postgres_and_claims_never_collide(pg_server):
     exp = op.create_experiment(name="pg", task="tip_speed", levels=3, method="random")
     trials = op.suggest(exp["id"], n=10)
     assert {t["status"] for t in trials} == {"queued"}
-    got: list[int] = []
-    lock = threading.Lock()
-
-    def claim_all(i: int) -> None:  # FOR UPDATE SKIP LOCKED: each trial goes to one worker
-        c = pg_server.client("worker")
-        while claims := c.claim(f"w{i}", "sim", max_trials=2):
-            with lock:
-                got.extend(x["trial"]["id"] for x in claims)
-
-    threads = [threading.Thread(target=claim_all, args=(i,)) for i in range(4)]
-    for th in threads:
-        th.start()
-    for th in threads:
-        th.join()
+    got = claim_until_empty(pg_server, n_workers=4)  # FOR UPDATE SKIP LOCKED: no trial twice
     assert sorted(got) == sorted(t["id"] for t in trials)
 
     t = trials[0]

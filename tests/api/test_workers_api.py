@@ -6,13 +6,14 @@ from __future__ import annotations
 import base64
 import io
 import sqlite3
-import threading
 
 import numpy as np
 import pytest
 
 from app.client import HandfulAPIError
 from app.policy import Policy, PressureLimits, schedule_hash
+
+from ..conftest import claim_until_empty
 
 SERVER_ENV = {"HANDFUL_LEASE_SECONDS": "60", "HANDFUL_MAX_ATTEMPTS": "2"}
 LIMITS = {"nominal_pa": 100_000.0, "max_step_pa": 30_000.0, "source_pa": 205_000.0}
@@ -244,23 +245,7 @@ def test_abort_revokes_the_lease_and_refuses_the_late_result(op, worker):
 def test_concurrent_claims_never_hand_out_a_trial_twice(op, module_server):
     exp = new_exp(op)
     trials = op.suggest(exp["id"], n=8)
-    got: list[int] = []
-    lock = threading.Lock()
-
-    def run(i: int) -> None:
-        c = module_server.client("worker")
-        while True:
-            claims = c.claim(f"w{i}", "sim", max_trials=2)
-            if not claims:
-                return
-            with lock:
-                got.extend(x["trial"]["id"] for x in claims)
-
-    threads = [threading.Thread(target=run, args=(i,)) for i in range(4)]
-    for th in threads:
-        th.start()
-    for th in threads:
-        th.join()
+    got = claim_until_empty(module_server, n_workers=4)
     assert sorted(got) == sorted(t["id"] for t in trials)
 
 
