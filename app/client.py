@@ -28,10 +28,11 @@ JSON = dict[str, Any]
 class HandfulAPIError(Exception):
     """An error reply from the server: HTTP ``status``, its ``detail`` text and ``code``."""
 
-    def __init__(self, status: int, detail: Any, code: str | None = None) -> None:
+    def __init__(self, status: int, detail: Any, code: str | None = None, body: Any = None) -> None:
         self.status = status
         self.detail = detail
         self.code = code
+        self.body = body  # the decoded error reply, e.g. a duplicate's ``receipt``
         super().__init__(f"HTTP {status}: {detail}")
 
 
@@ -114,8 +115,8 @@ class HandfulClient:
                 body = r.json()
                 detail, code = body.get("detail", body), body.get("code")
             except ValueError:
-                detail, code = r.text, None
-            raise HandfulAPIError(r.status_code, detail, code)
+                body, detail, code = None, r.text, None
+            raise HandfulAPIError(r.status_code, detail, code, body)
         if raw:
             return r
         if r.status_code == 204 or not r.content:
@@ -217,8 +218,10 @@ class HandfulClient:
     ) -> JSON:
         """Post raw repeats ``[{value, unit, note}]``; a random Idempotency-Key if none given.
 
-        On a retry after a lost connection a 409 ``duplicate_request`` means the first post
-        was stored: the trial is returned then.
+        Returns the receipt: ``{trial_id, experiment_id, status, objective, objective_sem,
+        n_measurements, stored}`` (``stored``: the repeats this post stored). On a retry after
+        a lost connection a 409 ``duplicate_request`` means the first post was stored: its
+        receipt is returned then.
         """
         key = idempotency_key or uuid.uuid4().hex
         path = f"/api/trials/{trial_id}/measurements"
@@ -229,7 +232,9 @@ class HandfulClient:
             )
         except HandfulAPIError as exc:
             if exc.code == "duplicate_request" and idempotency_key is None:
-                return self.get_trial(trial_id)
+                receipt = (exc.body or {}).get("receipt")
+                if receipt is not None:
+                    return receipt
             raise
 
     def fail_trial(self, trial_id: int, reason: str) -> JSON:

@@ -14,6 +14,7 @@ import hashlib
 import json
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -345,10 +346,13 @@ def schedule_hash(pressure_schedule_pa: np.ndarray, release_step: int | None = N
     millipascals = np.round(np.where(finite, schedule, 0.0) * 1000.0).astype(np.int64)
     # A forged or corrupted schedule still hashes (so it can be refused by name, never
     # crash a read); its NaN/inf entries hash as themselves, unlike any real schedule.
-    cells = [
-        [int(v) if ok else repr(float(x)) for v, ok, x in zip(row_v, row_ok, row_x, strict=True)]
-        for row_v, row_ok, row_x in zip(millipascals, finite, schedule, strict=True)
-    ]
+    if finite.all():  # every real schedule: the same cells, built in C
+        cells: list[Any] = millipascals.tolist()
+    else:
+        cells = [
+            [int(v) if ok else repr(float(x)) for v, ok, x in zip(r_v, r_ok, r_x, strict=True)]
+            for r_v, r_ok, r_x in zip(millipascals, finite, schedule, strict=True)
+        ]
     payload = {
         "pressure_schedule_mpa": cells,
         "release_step": None if release_step is None else int(release_step),

@@ -2,12 +2,14 @@
 
 API: sequential ``POST /api/trials/{id}/measurements`` (one repeat each, fresh
 Idempotency-Key) from one keep-alive client, spread over a set of trials, through auth,
-validation, idempotency check, objective/SEM update, audit row, version bump and a reply
-with the trial and its repeats. Raw: ``session.add(Measurement(...)); session.commit()``
-per row through ``app.db.make_engine`` with the same pragmas (WAL, ``--synchronous`` FULL
-by default, as the server) on the same database file, same trials. Also timed: the
-service function alone (no HTTP) and ``GET /health`` from the same client (the HTTP floor
-of any call). Alternating rounds; medians.
+validation, idempotency check, objective/SEM update, audit row, version bump and the
+receipt (the repeats stored, the trial's new objective). Raw:
+``session.add(Measurement(...)); session.commit()`` per row through ``app.db.make_engine``
+with the same pragmas (WAL, ``--synchronous`` FULL by default, as the server) on the same
+database file, same trials. Also timed: the service function alone (no HTTP), the same
+posts from ``http.client`` (the server's rate without httpx's own per-request cost) and
+``GET /health`` from HandfulClient (the HTTP floor of any call). Rounds rotate the order;
+medians.
 
     python benchmarks/service_measurements.py [--writes 300] [--rounds 3] [--clients 1]
         [--synchronous FULL|NORMAL]
@@ -16,6 +18,7 @@ of any call). Alternating rounds; medians.
 from __future__ import annotations
 
 import argparse
+import http.client
 import json
 import statistics
 import sys
@@ -28,6 +31,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from service_common import bench_server
+from tqdm import tqdm
 
 from app.client import HandfulClient
 from app.db.base import utcnow
@@ -118,6 +122,27 @@ def service_round(db_url: str, trial_ids: list[int], writes: int, synchronous: s
     return rate
 
 
+def lean_round(url: str, token: str, trial_ids: list[int], writes: int) -> float:
+    """Writes/s of the same posts from the standard library's ``http.client`` on one
+    keep-alive connection: the server's own rate, without httpx's per-request cost."""
+    host, port = url.removeprefix("http://").split(":")
+    conn = http.client.HTTPConnection(host, int(port), timeout=600)
+    headers = {"Authorization": f"Bearer {token}", "Content-Type": "application/json"}
+    t0 = time.perf_counter()
+    for i in range(writes):
+        body = json.dumps({"repeats": [{"value": 2.0 + 0.001 * i, "unit": "m/s"}]})
+        path = f"/api/trials/{trial_ids[i % len(trial_ids)]}/measurements"
+        conn.request("POST", path, body, {**headers, "Idempotency-Key": uuid.uuid4().hex})
+        reply = conn.getresponse()
+        data = reply.read()
+        if reply.status != 201:
+            raise RuntimeError(f"HTTP {reply.status}: {data[:200]!r}")
+        json.loads(data)
+    rate = writes / (time.perf_counter() - t0)
+    conn.close()
+    return rate
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--writes", type=int, default=300)
@@ -127,52 +152,51 @@ def main() -> None:
     ap.add_argument("--synchronous", choices=("FULL", "NORMAL"), default="FULL")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
+    rounds: dict[str, list[float]] = {k: [] for k in ("raw", "api", "lean", "service", "health")}
     with (
         tempfile.TemporaryDirectory() as tmp,
         bench_server(Path(tmp), env={"HANDFUL_SQLITE_SYNCHRONOUS": args.synchronous}) as srv,
     ):
         api = HandfulClient(srv.url, srv.token, timeout=600)
         exp = api.create_experiment(name="writes", task="tip_speed", levels=3, method="random")
-        trial_ids = [t["id"] for t in api.suggest(exp["id"], n=100)][: args.trials]
+        trial_ids: list[int] = []
         while len(trial_ids) < args.trials:
             trial_ids += [t["id"] for t in api.suggest(exp["id"], n=100)]
         trial_ids = trial_ids[: args.trials]
         api_round(srv.url, srv.token, trial_ids, 20, 1)  # warm-up
-        api_rates, raw_rates, svc_rates, floor_rates = [], [], [], []
-        for _ in range(args.rounds):
-            svc_rates.append(service_round(srv.db_url, trial_ids, args.writes, args.synchronous))
-            api_rates.append(api_round(srv.url, srv.token, trial_ids, args.writes, args.clients))
-            raw_rates.append(raw_round(srv.db_url, trial_ids, args.writes, args.synchronous))
-            floor_rates.append(floor_round(srv.url, srv.token, args.writes))
+        runs = {
+            "raw": lambda: raw_round(srv.db_url, trial_ids, args.writes, args.synchronous),
+            "api": lambda: api_round(srv.url, srv.token, trial_ids, args.writes, args.clients),
+            "lean": lambda: lean_round(srv.url, srv.token, trial_ids, args.writes),
+            "service": lambda: service_round(srv.db_url, trial_ids, args.writes, args.synchronous),
+            "health": lambda: floor_round(srv.url, srv.token, args.writes),
+        }
+        for k in tqdm(range(args.rounds), desc="rounds", unit="round"):
+            names = list(runs)
+            for name in names[k % len(names) :] + names[: k % len(names)]:  # rotate the order
+                rounds[name].append(runs[name]())
         api.close()
-    a, r = statistics.median(api_rates), statistics.median(raw_rates)
-    sv = statistics.median(svc_rates)
-    fl = statistics.median(floor_rates)
-    print(
-        f"synchronous={args.synchronous}  API {a:8.1f} writes/s ({args.clients} client(s))   "
-        f"raw {r:8.1f} writes/s   "
-        f"API/raw {a / r:6.3f}   (service alone, no HTTP: {sv:.1f} writes/s = {sv / r:.3f} of raw)"
-    )
-    print(
-        f"  per write: API {1e3 / a:.2f} ms, service alone {1e3 / sv:.2f} ms, raw {1e3 / r:.2f} ms;"
-        f" GET /health round trip {1e3 / fl:.2f} ms (= {fl / r:.3f} of raw: the HTTP floor)"
-    )
-    print(
-        "  rounds API:", [round(x, 1) for x in api_rates], " raw:", [round(x, 1) for x in raw_rates]
-    )
+    med = {k: statistics.median(v) for k, v in rounds.items()}
+    r = med["raw"]
+    what = {
+        "raw": "raw SQLAlchemy insert + commit",
+        "api": f"API, HandfulClient (httpx), {args.clients} client(s)",
+        "lean": "API, http.client (1 connection)",
+        "service": "service function alone (no HTTP)",
+        "health": "GET /health from HandfulClient",
+    }
+    print(f"synchronous={args.synchronous}, {args.writes} writes x {args.rounds} rounds (medians)")
+    print(f"  {'':44s} {'per s':>9s} {'ms each':>8s} {'/ raw':>7s}")
+    for k in ("raw", "api", "lean", "service", "health"):
+        print(f"  {what[k]:44s} {med[k]:9.1f} {1e3 / med[k]:8.2f} {med[k] / r:7.3f}")
+    print("  rounds:", {k: [round(x, 1) for x in v] for k, v in rounds.items()})
     if args.json:
         args.json.write_text(
             json.dumps(
                 {
-                    "api_per_s": a,
-                    "raw_per_s": r,
-                    "ratio": a / r,
-                    "api_rounds": api_rates,
-                    "raw_rounds": raw_rates,
-                    "service_per_s": sv,
-                    "service_rounds": svc_rates,
-                    "health_per_s": fl,
-                    "health_rounds": floor_rates,
+                    "per_s": med,
+                    "ratio": {k: v / r for k, v in med.items()},
+                    "rounds": rounds,
                     "clients": args.clients,
                     "synchronous": args.synchronous,
                     "writes": args.writes,

@@ -11,7 +11,7 @@ from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
-from app.service.errors import IllegalTransition, ServiceError
+from app.service.errors import DuplicateRequest, IllegalTransition, ServiceError
 
 
 def _json_safe(value: Any) -> Any:
@@ -33,6 +33,8 @@ def install(app: FastAPI) -> None:
         body: dict[str, Any] = {"detail": str(exc), "code": exc.code}
         if isinstance(exc, IllegalTransition):
             body["current_status"] = exc.current
+        if isinstance(exc, DuplicateRequest) and exc.receipt is not None:
+            body["receipt"] = exc.receipt
         headers = {"WWW-Authenticate": "Bearer"} if exc.status_code == 401 else None
         return JSONResponse(body, status_code=exc.status_code, headers=headers)
 

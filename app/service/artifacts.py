@@ -12,27 +12,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from sqlalchemy import bindparam, select
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.db.models import Artifact, Trial
 from app.service.auth import Actor
 from app.service.errors import InvalidInput, NotFound, PayloadTooLarge
-
-_TRAJECTORY_OF = (
-    select(Artifact.__table__.c.id)
-    .where(
-        Artifact.__table__.c.trial_id == bindparam("trial_id"),
-        Artifact.__table__.c.kind == "trajectory",
-    )
-    .limit(1)
-)
-
-
-def has_trajectory(session: Session, trial_id: int) -> bool:
-    """Whether the trial has a recorded trajectory (one indexed lookup)."""
-    row = session.connection().execute(_TRAJECTORY_OF, {"trial_id": trial_id}).first()
-    return row is not None
 
 
 def decode_npz_b64(data_b64: str, *, max_bytes: int) -> bytes:

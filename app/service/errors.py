@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 
 class ServiceError(Exception):
     """Base of every domain error; ``str(err)`` is the one-line message a client sees."""
@@ -57,9 +59,17 @@ class IllegalTransition(Conflict):
 
 
 class DuplicateRequest(Conflict):
-    """The same Idempotency-Key (or lease result) was already applied; nothing stored again."""
+    """The same Idempotency-Key (or lease result) was already applied; nothing stored again.
+
+    ``receipt``: the reply the first request got, when it was kept (a client that lost it
+    to a dropped connection gets it back with the 409).
+    """
 
     code = "duplicate_request"
+
+    def __init__(self, message: str, *, receipt: dict[str, Any] | None = None) -> None:
+        super().__init__(message)
+        self.receipt = receipt
 
 
 class LeaseLost(Conflict):

@@ -6,21 +6,30 @@ import hashlib
 import json
 import math
 from collections.abc import Sequence
+from types import SimpleNamespace
+from typing import Any
 
-import numpy as np
-from sqlalchemy import bindparam, insert, select
+from sqlalchemy import bindparam, exists, insert, select, update
 from sqlalchemy import inspect as sa_inspect
+from sqlalchemy.engine import Connection
+from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
+from sqlalchemy.orm.attributes import set_committed_value
 
 from app.db.base import utcnow
-from app.db.models import Experiment, IdempotencyKey, Measurement, Trial
+from app.db.models import Experiment, IdempotencyKey, Lease, Measurement, Trial
 from app.service import lifecycle as lc
-from app.service.artifacts import has_trajectory
 from app.service.audit import record
 from app.service.auth import Actor
-from app.service.errors import Conflict, DuplicateRequest, IllegalTransition, InvalidInput
+from app.service.errors import (
+    Conflict,
+    DuplicateRequest,
+    IllegalTransition,
+    InvalidInput,
+    NotFound,
+)
 from app.service.experiments import touch_id
-from app.service.schemas import MeasuredTrial, MeasurementRead, MeasurementsIn
+from app.service.schemas import MeasurementRead, MeasurementReceipt, MeasurementsIn
 
 #: plausible range of one measurement, per unit (anything outside is a typo or a unit mix-up)
 UNIT_RANGE: dict[str, tuple[float, float]] = {
@@ -34,13 +43,15 @@ MEASURABLE = frozenset({lc.QUEUED, lc.RUNNING, lc.COMPLETED, lc.NEEDS_REVIEW})
 
 def objective_from_repeats(values: Sequence[float]) -> tuple[float, float | None]:
     """Mean of the repeats, and its standard error std/√n (ddof=1) when n ≥ 2, else None."""
-    v = np.asarray(values, dtype=np.float64)
-    if v.size == 0:
+    v = [float(x) for x in values]
+    n = len(v)
+    if n == 0:
         raise ValueError("no repeats")
-    mean = float(v.mean())
-    if v.size < 2:
+    mean = math.fsum(v) / n
+    if n < 2:
         return mean, None
-    return mean, float(v.std(ddof=1) / math.sqrt(v.size))
+    variance = math.fsum((x - mean) ** 2 for x in v) / (n - 1)
+    return mean, math.sqrt(variance / n)
 
 
 def check_value(value: float, unit: str, expected_unit: str, *, what: str = "value") -> None:
@@ -60,43 +71,71 @@ def check_value(value: float, unit: str, expected_unit: str, *, what: str = "val
 
 
 # Built once: constructing a statement costs more than running it on SQLite, and a
-# measurement post is the service's most frequent write.
+# measurement post is the service's most frequent write: eight statements on the session's
+# connection (no ORM load, no flush unless the status changes) and one commit.
 _MEASUREMENTS = Measurement.__table__
-_REPEATS_OF = (
-    select(_MEASUREMENTS)
+_TRIALS = Trial.__table__
+_VALUES_OF = (
+    select(_MEASUREMENTS.c.value)
     .where(_MEASUREMENTS.c.trial_id == bindparam("trial_id"))
     .order_by(_MEASUREMENTS.c.id)
 )
 _INSERT_REPEAT = insert(_MEASUREMENTS).returning(_MEASUREMENTS.c.id)
+_SET_OBJECTIVE = (
+    update(_TRIALS)
+    .where(_TRIALS.c.id == bindparam("trial_id"))
+    .values(
+        objective=bindparam("objective"),
+        objective_sem=bindparam("objective_sem"),
+        n_measurements=bindparam("n_measurements"),
+        updated_at=bindparam("updated_at"),
+    )
+)
 _KEYS = IdempotencyKey.__table__
-_KEY_SEEN = select(_KEYS.c.request_sha256, _KEYS.c.summary).where(
+_KEY_SEEN = select(_KEYS.c.request_sha256, _KEYS.c.summary, _KEYS.c.receipt).where(
     _KEYS.c.scope == bindparam("scope"), _KEYS.c.key == bindparam("key")
 )
 _INSERT_KEY = insert(_KEYS)
-_UNIT_OF = select(Experiment.__table__.c.objective_unit).where(
-    Experiment.__table__.c.id == bindparam("experiment_id")
+_LEASES = Lease.__table__
+#: what a post needs of its trial: status, objective, the experiment's unit, a worker's lease
+_TRIAL_TO_MEASURE = (
+    select(
+        _TRIALS.c.id,
+        _TRIALS.c.experiment_id,
+        _TRIALS.c.status,
+        _TRIALS.c.objective,
+        Experiment.__table__.c.objective_unit,
+        exists()
+        .where(_LEASES.c.trial_id == _TRIALS.c.id, _LEASES.c.status == "active")
+        .label("leased"),
+    )
+    .join(Experiment.__table__, Experiment.__table__.c.id == _TRIALS.c.experiment_id)
+    .where(_TRIALS.c.id == bindparam("trial_id"))
+    .with_for_update(of=_TRIALS)  # PostgreSQL locks the row; SQLite holds the write lock
 )
+_COUNTED = ("objective", "objective_sem", "n_measurements", "updated_at")
+_TRIAL_KEY = sa_inspect(Trial).identity_key_from_primary_key
 
 
 def store_measurement(
     session: Session,
-    trial: Trial,
+    trial: Any,
     values: Sequence[tuple[float, str, str]],
     *,
     actor: Actor,
     source: str,
 ) -> list[MeasurementRead]:
-    """Append raw repeats (value, unit, note) to ``trial`` (already flushed, so it has an id)
-    and refresh its objective, SEM and count from all its repeats.
+    """Append raw repeats (value, unit, note) to ``trial`` and refresh its objective, SEM and
+    count from all its repeats, in SQL and on ``trial``: a flushed ORM Trial (left in step
+    with its row, nothing to flush) or any object with ``id``, ``experiment_id`` and
+    ``objective`` attributes (which get the new values).
 
-    Returns every repeat of the trial, oldest first, the new ones last.
+    Returns the repeats stored, in order.
     """
     now = utcnow()
     db = session.connection()
-    repeats = [
-        MeasurementRead.model_validate(r, from_attributes=True)
-        for r in db.execute(_REPEATS_OF, {"trial_id": trial.id})
-    ]
+    all_values = list(db.execute(_VALUES_OF, {"trial_id": trial.id}).scalars())
+    stored = []
     for v, u, note in values:
         row = {
             "trial_id": trial.id,
@@ -107,13 +146,20 @@ def store_measurement(
             "created_by": actor.username,
             "created_at": now,
         }
-        repeats.append(MeasurementRead(id=db.execute(_INSERT_REPEAT, row).scalar_one(), **row))
-    if "measurements" in sa_inspect(trial).dict:  # a collection loaded earlier is now stale
-        session.expire(trial, ["measurements"])
+        stored.append(MeasurementRead(id=db.execute(_INSERT_REPEAT, row).scalar_one(), **row))
+        all_values.append(float(v))
     before = trial.objective
-    trial.objective, trial.objective_sem = objective_from_repeats([m.value for m in repeats])
-    trial.n_measurements = len(repeats)
-    trial.updated_at = now
+    objective, sem = objective_from_repeats(all_values)
+    counted = dict(zip(_COUNTED, (objective, sem, len(all_values), now), strict=True))
+    db.execute(_SET_OBJECTIVE, {"trial_id": trial.id, **counted})
+    state = sa_inspect(trial, raiseerr=False)
+    for name, value in counted.items():
+        if state is not None:
+            set_committed_value(trial, name, value)
+        else:
+            setattr(trial, name, value)
+    if state is not None and "measurements" in state.dict:  # a loaded collection is now stale
+        session.expire(trial, ["measurements"])
     record(
         session,
         actor=actor.username,
@@ -123,19 +169,34 @@ def store_measurement(
         experiment_id=trial.experiment_id,
         trial_id=trial.id,
         before=None if before is None else repr(before),
-        after=repr(trial.objective),
-        detail={
-            "source": source,
-            "values": [float(v) for v, _, _ in values],
-        },
+        after=repr(objective),
+        detail={"source": source, "values": [float(v) for v, _, _ in values]},
         now=now,
     )
-    return repeats
+    return stored
 
 
 def _request_sha256(trial_id: int, body: MeasurementsIn) -> str:
     blob = json.dumps({"trial_id": trial_id, **body.model_dump()}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def _check_key_unused(db: Connection, key: str, digest: str) -> None:
+    """DuplicateRequest (with the first post's receipt) if ``key`` was applied to this very
+    request; Conflict if it was used for another."""
+    seen = db.execute(_KEY_SEEN, {"scope": "measurements", "key": key}).first()
+    if seen is None:
+        return
+    if seen.request_sha256 == digest:
+        raise DuplicateRequest(
+            f"duplicate post: Idempotency-Key {key!r} was already applied ({seen.summary}); "
+            "nothing stored again",
+            receipt=seen.receipt,
+        )
+    raise Conflict(
+        f"Idempotency-Key {key!r} was already used for a different request ({seen.summary}); "
+        "use a new key"
+    )
 
 
 def add_measurements(
@@ -145,66 +206,69 @@ def add_measurements(
     *,
     idempotency_key: str | None,
     actor: Actor,
-) -> MeasuredTrial:
+) -> MeasurementReceipt:
     """Record an operator's repeats for a trial, once per Idempotency-Key (committed).
 
     A queued or running trial without a worker's lease becomes completed; a completed one
     gets its objective recomputed; a needs_review one keeps its status (a person decides).
     """
-    from app.service.trials import active_lease, get_trial
-
     if not idempotency_key or not (1 <= len(idempotency_key) <= 200):
         raise InvalidInput("the Idempotency-Key header is required (1-200 characters)")
     if not idempotency_key.isprintable():
         raise InvalidInput("the Idempotency-Key header must be printable text")
     digest = _request_sha256(trial_id, body)
     db = session.connection()
-    seen = db.execute(_KEY_SEEN, {"scope": "measurements", "key": idempotency_key}).first()
-    if seen is not None:
-        if seen.request_sha256 == digest:
-            raise DuplicateRequest(
-                f"duplicate post: Idempotency-Key {idempotency_key!r} was already applied "
-                f"({seen.summary}); nothing stored again"
-            )
-        raise Conflict(
-            f"Idempotency-Key {idempotency_key!r} was already used for a different request "
-            f"({seen.summary}); use a new key"
-        )
-    trial = get_trial(session, trial_id, for_update=True)
-    if trial.status not in MEASURABLE:
+    _check_key_unused(db, idempotency_key, digest)
+    row = db.execute(_TRIAL_TO_MEASURE, {"trial_id": trial_id}).first()
+    if row is None:
+        raise NotFound(f"trial {trial_id} not found")
+    if row.status not in MEASURABLE:
         raise IllegalTransition(
-            f"cannot add measurements: trial {trial.id} is {trial.status}"
-            + (" (confirm and run it first)" if trial.status in lc.PENDING else ""),
-            current=trial.status,
+            f"cannot add measurements: trial {row.id} is {row.status}"
+            + (" (confirm and run it first)" if row.status in lc.PENDING else ""),
+            current=row.status,
         )
-    unit = db.execute(_UNIT_OF, {"experiment_id": trial.experiment_id}).scalar_one()
     for i, rep in enumerate(body.repeats):
-        check_value(rep.value, rep.unit, unit, what=f"repeats[{i}].value")
-    repeats = store_measurement(
-        session,
-        trial,
-        [(r.value, r.unit, r.note) for r in body.repeats],
-        actor=actor,
-        source="operator",
-    )
-    if trial.status in (lc.QUEUED, lc.RUNNING) and active_lease(session, trial.id) is None:
+        check_value(rep.value, rep.unit, row.objective_unit, what=f"repeats[{i}].value")
+    values = [(r.value, r.unit, r.note) for r in body.repeats]
+    # The first measurement of an unleased trial completes it: a status change, made by the
+    # lifecycle on the ORM object. Later ones only touch the row (and the ORM object, when
+    # the session holds one, so that it is not left stale).
+    completes = row.status in (lc.QUEUED, lc.RUNNING) and not row.leased
+    trial: Any = session.identity_map.get(_TRIAL_KEY((trial_id,)))
+    if trial is None:
+        trial = session.get(Trial, trial_id) if completes else SimpleNamespace(**row._mapping)
+    stored = store_measurement(session, trial, values, actor=actor, source="operator")
+    if completes:
         lc.transition(
             session, trial, lc.COMPLETED, actor=actor.username, reason="measured by the operator"
         )
-    db.execute(
-        _INSERT_KEY,
-        {
-            "scope": "measurements",
-            "key": idempotency_key,
-            "request_sha256": digest,
-            "summary": f"trial {trial.id}, {len(body.repeats)} repeat(s)",
-            "created_by": actor.username,
-            "created_at": utcnow(),
-        },
+    receipt = MeasurementReceipt(
+        trial_id=trial.id,
+        experiment_id=trial.experiment_id,
+        status=trial.status,
+        objective=trial.objective,
+        objective_sem=trial.objective_sem,
+        n_measurements=trial.n_measurements,
+        stored=stored,
     )
+    try:
+        db.execute(
+            _INSERT_KEY,
+            {
+                "scope": "measurements",
+                "key": idempotency_key,
+                "request_sha256": digest,
+                "summary": f"trial {trial_id}, {len(stored)} repeat(s)",
+                "receipt": receipt.model_dump(mode="json"),
+                "created_by": actor.username,
+                "created_at": utcnow(),
+            },
+        )
+    except IntegrityError:  # the same key, committed by a concurrent post since our check
+        session.rollback()
+        _check_key_unused(session.connection(), idempotency_key, digest)
+        raise
     touch_id(session, trial.experiment_id)
-    reply = MeasuredTrial.build_measured(
-        trial, repeats, has_trajectory=has_trajectory(session, trial.id)
-    )
-    session.commit()  # one flush (the trial's new objective) and one commit in all
-    return reply
+    session.commit()  # one commit; a flush only when the status changed
+    return receipt

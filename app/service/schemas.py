@@ -322,17 +322,19 @@ class TrialRead(BaseModel):
         )
 
 
-class MeasuredTrial(TrialRead):
-    """A trial after a measurement post: its new objective and every raw repeat."""
+class MeasurementReceipt(BaseModel):
+    """Reply to a measurement post: the repeats it stored and the trial's objective after it.
 
-    measurements: list[MeasurementRead]
+    The whole trial, with every repeat and its audit trail, is ``GET /api/trials/{id}``.
+    """
 
-    @classmethod
-    def build_measured(
-        cls, t: Trial, repeats: list[MeasurementRead], *, has_trajectory: bool
-    ) -> MeasuredTrial:
-        base = TrialRead.build(t, has_trajectory=has_trajectory)  # validated here, once
-        return cls.model_construct(**dict(base), measurements=repeats)
+    trial_id: int
+    experiment_id: int
+    status: str
+    objective: float | None = Field(description="mean of every repeat of the trial")
+    objective_sem: float | None = Field(description="standard error of that mean (n ≥ 2)")
+    n_measurements: int
+    stored: list[MeasurementRead] = Field(description="the repeats this post stored, in order")
 
 
 class TrialDetail(TrialRead):

@@ -7,7 +7,7 @@ import httpx
 import numpy as np
 import pytest
 
-from app.client import HandfulAPIError
+from app.client import HandfulAPIError, HandfulClient
 from app.policy import Policy
 
 
@@ -58,22 +58,29 @@ def test_measurements_keep_every_repeat_and_give_mean_and_sem(api, queued):
     )
     assert t["status"] == "completed" and t["objective"] == 3.0
     assert t["objective_sem"] == pytest.approx(np.std([2.0, 4.0], ddof=1) / np.sqrt(2))
-    t = api.add_measurements(trial["id"], [{"value": 6.0, "unit": "m/s"}])
-    assert t["n_measurements"] == 3 and t["objective"] == 4.0
+    assert [(m["value"], m["note"]) for m in t["stored"]] == [(2.0, "first"), (4.0, "")]
+    receipt = api.add_measurements(trial["id"], [{"value": 6.0, "unit": "m/s"}])
+    assert receipt["n_measurements"] == 3 and receipt["objective"] == 4.0
+    assert receipt["trial_id"] == trial["id"] and receipt["status"] == "completed"
+    assert [m["value"] for m in receipt["stored"]] == [6.0]
+    t = api.get_trial(trial["id"])
     assert [(m["value"], m["source"], m["created_by"]) for m in t["measurements"]] == [
         (2.0, "operator", "operator"),
         (4.0, "operator", "operator"),
         (6.0, "operator", "operator"),
     ]
     assert t["measurements"][0]["note"] == "first"
+    assert t["measurements"][2]["id"] == receipt["stored"][0]["id"]
+    assert (t["objective"], t["n_measurements"]) == (4.0, 3)
 
 
 def test_duplicate_post_is_refused_and_stores_nothing(api, queued):
     _, trial = queued
     body = [{"value": 1.5, "unit": "m/s"}]
-    api.add_measurements(trial["id"], body, idempotency_key="k-dup-1")
+    first = api.add_measurements(trial["id"], body, idempotency_key="k-dup-1")
     err = error_of(api.add_measurements, trial["id"], body, idempotency_key="k-dup-1")
     assert err.status == 409 and err.code == "duplicate_request" and "k-dup-1" in err.detail
+    assert err.body["receipt"] == first  # the first post's reply, for a client that lost it
     err = error_of(
         api.add_measurements,
         trial["id"],
@@ -82,6 +89,37 @@ def test_duplicate_post_is_refused_and_stores_nothing(api, queued):
     )
     assert err.status == 409 and "different request" in err.detail
     assert api.get_trial(trial["id"])["n_measurements"] == 1
+
+
+class _LoseFirstReply(httpx.BaseTransport):
+    """Delivers every request, but the first reply is lost on the way back (a dropped link)."""
+
+    def __init__(self) -> None:
+        self.inner = httpx.HTTPTransport()
+        self.lost = 0
+
+    def handle_request(self, request: httpx.Request) -> httpx.Response:
+        response = self.inner.handle_request(request)
+        if self.lost == 0:
+            response.read()
+            self.lost += 1
+            raise httpx.ReadError("connection reset by peer", request=request)
+        return response
+
+
+def test_a_retry_after_a_lost_reply_stores_once_and_gets_the_first_receipt(live_server, queued):
+    _, trial = queued
+    flaky = HandfulClient(
+        live_server.url,
+        live_server.tokens["operator"],
+        retries=2,
+        transport=_LoseFirstReply(),
+    )
+    receipt = flaky.add_measurements(trial["id"], [{"value": 2.5, "unit": "m/s"}])
+    assert flaky._http._transport.lost == 1  # the first reply really was lost
+    assert receipt["n_measurements"] == 1 and [m["value"] for m in receipt["stored"]] == [2.5]
+    t = live_server.client("operator").get_trial(trial["id"])
+    assert [m["id"] for m in t["measurements"]] == [receipt["stored"][0]["id"]]
 
 
 @pytest.mark.parametrize(

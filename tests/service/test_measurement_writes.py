@@ -34,9 +34,9 @@ def test_each_post_bumps_the_version_once_and_keeps_every_repeat(db, make_experi
     assert first.status == lc.COMPLETED and first.objective == 3.0
     assert _version(db, exp_id) == v0 + 1
     second = _post(db, tid, [6.0], "k2")
-    assert [m.value for m in second.measurements] == [2.0, 4.0, 6.0]
+    assert [m.value for m in second.stored] == [6.0]
     assert second.n_measurements == 3 and second.objective == 4.0
-    assert [m.id for m in second.measurements] == sorted(m.id for m in second.measurements)
+    assert second.stored[0].id > max(m.id for m in first.stored)
     assert _version(db, exp_id) == v0 + 2
     with pytest.raises(DuplicateRequest):
         _post(db, tid, [6.0], "k2")
@@ -77,3 +77,33 @@ def test_a_loaded_repeats_collection_is_not_left_stale(db, make_experiment, make
         assert [m.value for m in trial.measurements] == [1.5, 2.5]
         assert trial.objective == 2.0 and trial.n_measurements == 2
         s.commit()
+
+
+def test_a_trial_loaded_in_the_session_is_kept_in_step(db, make_experiment, make_trial):
+    """The post writes the row in SQL; a Trial the session already holds sees the new numbers
+    at once, with nothing left to flush."""
+    exp_id = make_experiment()
+    tid = make_trial(exp_id, status=lc.COMPLETED)
+    body = MeasurementsIn(repeats=[{"value": 1.0, "unit": "m/s"}, {"value": 3.0, "unit": "m/s"}])
+    with db.write() as s:
+        trial = s.get(Trial, tid)
+        receipt = add_measurements(s, tid, body, idempotency_key="k-held", actor=OPERATOR)
+        assert (trial.objective, trial.n_measurements) == (2.0, 2)
+        assert trial.objective_sem == pytest.approx(1.0)
+        assert not s.dirty
+    assert receipt.objective == 2.0 and [m.value for m in receipt.stored] == [1.0, 3.0]
+    with db.read() as s:
+        assert s.get(Trial, tid).objective == 2.0
+
+
+def test_store_measurement_leaves_an_orm_trial_clean(db, make_experiment, make_trial):
+    exp_id = make_experiment()
+    tid = make_trial(exp_id, status=lc.COMPLETED)
+    with db.write() as s:
+        trial = s.get(Trial, tid)
+        stored = store_measurement(s, trial, [(4.0, "m/s", "")], actor=OPERATOR, source="worker")
+        assert [m.value for m in stored] == [4.0] and trial.objective == 4.0
+        assert trial not in s.dirty  # in step with its row: the UPDATE already ran
+        s.rollback()
+    with db.read() as s:
+        assert s.get(Trial, tid).objective is None  # and it was part of the transaction

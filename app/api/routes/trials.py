@@ -20,7 +20,7 @@ from app.api.deps import (
 from app.service import artifacts, measurements, runs, trials
 from app.service.schemas import (
     ConfirmIn,
-    MeasuredTrial,
+    MeasurementReceipt,
     MeasurementsIn,
     PreviewJobRead,
     ReasonIn,
@@ -38,7 +38,7 @@ def get_trial(trial_id: int, session: ReadSession, _: Reader) -> Response:
     return json_response(trials.read_trial(session, trial_id))
 
 
-@router.post("/trials/{trial_id}/measurements", status_code=201, response_model=MeasuredTrial)
+@router.post("/trials/{trial_id}/measurements", status_code=201, response_model=MeasurementReceipt)
 def add_measurements(
     trial_id: int,
     body: MeasurementsIn,
@@ -48,12 +48,14 @@ def add_measurements(
 ) -> Response:
     """Record raw repeats (value, unit, note); the objective is their mean ± SEM.
 
-    Replies with the trial and all its repeats (its audit trail is on ``GET /trials/{id}``).
+    Replies with the repeats stored and the trial's new objective (the whole trial, with
+    every repeat and its audit trail, is ``GET /trials/{id}``). A replayed post (same key,
+    same body) is a 409 ``duplicate_request`` carrying the first post's ``receipt``.
     """
-    measured = measurements.add_measurements(
+    receipt = measurements.add_measurements(
         session, trial_id, body, idempotency_key=idempotency_key, actor=actor
     )
-    return json_response(measured, status_code=201)
+    return json_response(receipt, status_code=201)
 
 
 @router.post("/trials/{trial_id}/fail")
