@@ -88,7 +88,8 @@ class Database:
         with self._write() as session:
             try:
                 yield session
-                session.commit()
+                if session.in_transaction():  # the caller may have committed already
+                    session.commit()
             except BaseException:
                 session.rollback()
                 raise

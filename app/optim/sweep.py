@@ -508,8 +508,10 @@ def plot_curves(rows: Sequence[dict[str, Any]], path: Path) -> None:
             arr = np.array([c[:n] for c in curves.values()])
             x = np.arange(1, n + 1)
             mean, std = arr.mean(axis=0), arr.std(axis=0)
-            ax.plot(x, mean, label=f"{m} ({len(curves)})", color=colours(i % 10), lw=1.5)
-            ax.fill_between(x, mean - std, mean + std, color=colours(i % 10), alpha=0.15)
+            # tab10 has 10 colours: past that, the dash pattern tells methods apart
+            colour, dashes = colours(i % 10), ("-", "--", ":", "-.")[(i // 10) % 4]
+            ax.plot(x, mean, label=f"{m} ({len(curves)})", color=colour, ls=dashes, lw=1.5)
+            ax.fill_between(x, mean - std, mean + std, color=colour, alpha=0.15)
         ax.set_title(f"{task}, P = {p}")
         ax.set_xlabel("trial")
         ax.set_ylabel("best objective so far")

@@ -191,3 +191,26 @@ def test_a_cache_line_cut_short_is_dropped_on_resume(tmp_path):
     with open(path, "a") as fh:
         fh.write('4,1.5,0.1,"[0.2')  # interrupted mid-write
     assert sweep.read_run(path) == rows
+
+
+def test_curves_tell_a_dozen_methods_apart(tmp_path, monkeypatch):
+    """Past tab10's ten colours each method still gets its own colour and dash pattern."""
+    from matplotlib.figure import Figure
+
+    from app.optim.sweep import plot_curves
+
+    saved: list[Figure] = []
+    real_savefig = Figure.savefig
+    monkeypatch.setattr(
+        Figure, "savefig", lambda fig, *a, **k: (saved.append(fig), real_savefig(fig, *a, **k))
+    )
+    rows = [
+        {"task": "throw", "levels": 2, "method": f"m{i}", "seed": s, "best_so_far": v}
+        for i in range(12)
+        for s in range(2)
+        for v in (1.0, 2.0 + i)
+    ]
+    plot_curves(rows, tmp_path / "curves.png")
+    [ax] = [a for a in saved[0].axes if a.lines]
+    styles = {(str(line.get_color()), line.get_linestyle()) for line in ax.lines}
+    assert len(ax.lines) == 12 and len(styles) == 12
