@@ -39,7 +39,7 @@ def _call(live_server, method, path, role):
     # streamed, and closed once the status line is in: GET .../events is an endless
     # server-sent-events stream when the experiment exists (other tests may have made it)
     with httpx.stream(method, url, json={}, headers=headers, timeout=30) as r:
-        if r.status_code >= 400:
+        if not r.headers.get("content-type", "").startswith("text/event-stream"):
             r.read()
         return r
 
