@@ -10,6 +10,8 @@ from fastapi import FastAPI, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from sqlalchemy.exc import OperationalError
+from sqlalchemy.exc import TimeoutError as PoolTimeout
 
 from app.service.errors import DuplicateRequest, IllegalTransition, ServiceError
 
@@ -37,6 +39,24 @@ def install(app: FastAPI) -> None:
             body["receipt"] = exc.receipt
         headers = {"WWW-Authenticate": "Bearer"} if exc.status_code == 401 else None
         return JSONResponse(body, status_code=exc.status_code, headers=headers)
+
+    busy = {"code": "database_busy"}
+
+    @app.exception_handler(PoolTimeout)
+    async def _writer_queue_full(_request: Request, exc: PoolTimeout) -> JSONResponse:
+        detail = "the database is busy: another write held it too long; nothing was stored, retry"
+        return JSONResponse(
+            {"detail": detail, **busy}, status_code=503, headers={"Retry-After": "1"}
+        )
+
+    @app.exception_handler(OperationalError)
+    async def _database_error(_request: Request, exc: OperationalError) -> JSONResponse:
+        if "locked" in str(exc.orig) or "busy" in str(exc.orig):  # another process's writer
+            detail = "the database is locked by another program; nothing was stored, retry"
+            return JSONResponse(
+                {"detail": detail, **busy}, status_code=503, headers={"Retry-After": "1"}
+            )
+        raise exc
 
     @app.exception_handler(RequestValidationError)
     async def _validation_error(_request: Request, exc: RequestValidationError) -> JSONResponse:

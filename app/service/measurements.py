@@ -97,7 +97,8 @@ _KEY_SEEN = select(_KEYS.c.request_sha256, _KEYS.c.summary, _KEYS.c.receipt).whe
 )
 _INSERT_KEY = insert(_KEYS)
 _LEASES = Lease.__table__
-#: what a post needs of its trial: status, objective, the experiment's unit, a worker's lease
+#: what a post needs of its trial (status, objective, the experiment's unit, a worker's
+#: lease) and whether its Idempotency-Key was seen: one round trip
 _TRIAL_TO_MEASURE = (
     select(
         _TRIALS.c.id,
@@ -108,6 +109,9 @@ _TRIAL_TO_MEASURE = (
         exists()
         .where(_LEASES.c.trial_id == _TRIALS.c.id, _LEASES.c.status == "active")
         .label("leased"),
+        exists()
+        .where(_KEYS.c.scope == bindparam("scope"), _KEYS.c.key == bindparam("key"))
+        .label("key_seen"),
     )
     .join(Experiment.__table__, Experiment.__table__.c.id == _TRIALS.c.experiment_id)
     .where(_TRIALS.c.id == bindparam("trial_id"))
@@ -218,10 +222,13 @@ def add_measurements(
         raise InvalidInput("the Idempotency-Key header must be printable text")
     digest = _request_sha256(trial_id, body)
     db = session.connection()
-    _check_key_unused(db, idempotency_key, digest)
-    row = db.execute(_TRIAL_TO_MEASURE, {"trial_id": trial_id}).first()
+    row = db.execute(
+        _TRIAL_TO_MEASURE, {"trial_id": trial_id, "scope": "measurements", "key": idempotency_key}
+    ).first()
     if row is None:
         raise NotFound(f"trial {trial_id} not found")
+    if row.key_seen:
+        _check_key_unused(db, idempotency_key, digest)
     if row.status not in MEASURABLE:
         raise IllegalTransition(
             f"cannot add measurements: trial {row.id} is {row.status}"
