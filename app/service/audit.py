@@ -6,17 +6,19 @@ from datetime import datetime
 from typing import Any
 
 from sqlalchemy import insert
+from sqlalchemy.engine import Connection
 from sqlalchemy.orm import Session
 
 from app.db.base import utcnow
 from app.db.models import AuditLog
+from app.db.prepared import Prepared
 
 # Built once: constructing a statement costs more than running it on SQLite.
-_INSERT = insert(AuditLog.__table__)
+_INSERT = Prepared(insert(AuditLog.__table__))
 
 
 def record(
-    session: Session,
+    session: Session | Connection,
     *,
     actor: str,
     action: str,
@@ -32,9 +34,11 @@ def record(
     """Append one audit row in the caller's transaction (a plain INSERT, committed with it).
 
     Rows are written when recorded, so their ids follow the order of the calls.
+    ``session``: the caller's Session, or the Connection it holds.
     """
-    session.connection().execute(
-        _INSERT,
+    conn = session.connection() if isinstance(session, Session) else session
+    _INSERT.execute(
+        conn,
         {
             "at": now or utcnow(),
             "actor": actor,

@@ -6,10 +6,12 @@ from typing import Any
 
 from sqlalchemy import bindparam, func, select, update
 from sqlalchemy import inspect as sa_inspect
+from sqlalchemy.engine import Connection
 from sqlalchemy.orm import Session
 
 from app.db.base import utcnow
 from app.db.models import AuditLog, Experiment, Trial
+from app.db.prepared import Prepared
 from app.policy import Policy, PolicyError, PressureLimits
 from app.service.audit import record
 from app.service.auth import Actor
@@ -48,21 +50,23 @@ def touch(exp: Experiment) -> None:
     exp.updated_at = utcnow()
 
 
-_TOUCH = (
+_TOUCH = Prepared(
     update(Experiment.__table__)
     .where(Experiment.__table__.c.id == bindparam("experiment_id"))
     .values(version=Experiment.__table__.c.version + 1, updated_at=bindparam("now"))
 )
 
 
-def touch_id(session: Session, experiment_id: int) -> None:
+def touch_id(session: Session, experiment_id: int, *, connection: Connection | None = None) -> None:
     """``touch`` by id: in SQL when the experiment is not loaded (no need to load it), on the
-    loaded object otherwise (an UPDATE behind its back would leave its version stale)."""
+    loaded object otherwise (an UPDATE behind its back would leave its version stale).
+    ``connection``: the session's, when the caller holds it already."""
     key = sa_inspect(Experiment).identity_key_from_primary_key((experiment_id,))
     if key in session.identity_map:
         touch(session.identity_map[key])
         return
-    session.connection().execute(_TOUCH, {"experiment_id": experiment_id, "now": utcnow()})
+    conn = connection or session.connection()
+    _TOUCH.execute(conn, {"experiment_id": experiment_id, "now": utcnow()})
 
 
 def optimizer_kwargs(exp: Experiment) -> dict[str, Any]:

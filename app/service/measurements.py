@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+from collections import namedtuple
 from collections.abc import Sequence
 from types import SimpleNamespace
 from typing import Any
@@ -18,6 +19,7 @@ from sqlalchemy.orm.attributes import set_committed_value
 
 from app.db.base import utcnow
 from app.db.models import Experiment, IdempotencyKey, Lease, Measurement, Trial
+from app.db.prepared import Prepared
 from app.service import lifecycle as lc
 from app.service.audit import record
 from app.service.auth import Actor
@@ -70,18 +72,18 @@ def check_value(value: float, unit: str, expected_unit: str, *, what: str = "val
         raise InvalidInput(f"{what} {value!r} {unit} is outside the plausible [{lo:g}, {hi:g}]")
 
 
-# Built once: constructing a statement costs more than running it on SQLite, and a
-# measurement post is the service's most frequent write: eight statements on the session's
-# connection (no ORM load, no flush unless the status changes) and one commit.
+# Built once, run as ``Prepared`` statements (app.db.prepared): a measurement post is the
+# service's most frequent write, seven statements on the session's connection (no ORM load,
+# no flush unless the status changes) and one commit.
 _MEASUREMENTS = Measurement.__table__
 _TRIALS = Trial.__table__
-_VALUES_OF = (
+_VALUES_OF = Prepared(
     select(_MEASUREMENTS.c.value)
     .where(_MEASUREMENTS.c.trial_id == bindparam("trial_id"))
     .order_by(_MEASUREMENTS.c.id)
 )
-_INSERT_REPEAT = insert(_MEASUREMENTS).returning(_MEASUREMENTS.c.id)
-_SET_OBJECTIVE = (
+_INSERT_REPEAT = Prepared(insert(_MEASUREMENTS).returning(_MEASUREMENTS.c.id))
+_SET_OBJECTIVE = Prepared(
     update(_TRIALS)
     .where(_TRIALS.c.id == bindparam("trial_id"))
     .values(
@@ -95,11 +97,11 @@ _KEYS = IdempotencyKey.__table__
 _KEY_SEEN = select(_KEYS.c.request_sha256, _KEYS.c.summary, _KEYS.c.receipt).where(
     _KEYS.c.scope == bindparam("scope"), _KEYS.c.key == bindparam("key")
 )
-_INSERT_KEY = insert(_KEYS)
+_INSERT_KEY = Prepared(insert(_KEYS))
 _LEASES = Lease.__table__
 #: what a post needs of its trial (status, objective, the experiment's unit, a worker's
 #: lease) and whether its Idempotency-Key was seen: one round trip
-_TRIAL_TO_MEASURE = (
+_TRIAL_TO_MEASURE = Prepared(
     select(
         _TRIALS.c.id,
         _TRIALS.c.experiment_id,
@@ -116,6 +118,10 @@ _TRIAL_TO_MEASURE = (
     .join(Experiment.__table__, Experiment.__table__.c.id == _TRIALS.c.experiment_id)
     .where(_TRIALS.c.id == bindparam("trial_id"))
     .with_for_update(of=_TRIALS)  # PostgreSQL locks the row; SQLite holds the write lock
+)
+_TrialToMeasure = namedtuple(
+    "_TrialToMeasure",
+    "id experiment_id status objective objective_unit leased key_seen",
 )
 _COUNTED = ("objective", "objective_sem", "n_measurements", "updated_at")
 _TRIAL_KEY = sa_inspect(Trial).identity_key_from_primary_key
@@ -138,7 +144,7 @@ def store_measurement(
     """
     now = utcnow()
     db = session.connection()
-    all_values = list(db.execute(_VALUES_OF, {"trial_id": trial.id}).scalars())
+    all_values = [v for (v,) in _VALUES_OF.execute(db, {"trial_id": trial.id}).fetchall()]
     stored = []
     for v, u, note in values:
         row = {
@@ -150,12 +156,13 @@ def store_measurement(
             "created_by": actor.username,
             "created_at": now,
         }
-        stored.append(MeasurementRead(id=db.execute(_INSERT_REPEAT, row).scalar_one(), **row))
+        (repeat_id,) = _INSERT_REPEAT.execute(db, row).fetchone()
+        stored.append(MeasurementRead(id=repeat_id, **row))
         all_values.append(float(v))
     before = trial.objective
     objective, sem = objective_from_repeats(all_values)
     counted = dict(zip(_COUNTED, (objective, sem, len(all_values), now), strict=True))
-    db.execute(_SET_OBJECTIVE, {"trial_id": trial.id, **counted})
+    _SET_OBJECTIVE.execute(db, {"trial_id": trial.id, **counted})
     state = sa_inspect(trial, raiseerr=False)
     for name, value in counted.items():
         if state is not None:
@@ -165,7 +172,7 @@ def store_measurement(
     if state is not None and "measurements" in state.dict:  # a loaded collection is now stale
         session.expire(trial, ["measurements"])
     record(
-        session,
+        db,
         actor=actor.username,
         action="trial.measure",
         entity="trial",
@@ -222,11 +229,12 @@ def add_measurements(
         raise InvalidInput("the Idempotency-Key header must be printable text")
     digest = _request_sha256(trial_id, body)
     db = session.connection()
-    row = db.execute(
-        _TRIAL_TO_MEASURE, {"trial_id": trial_id, "scope": "measurements", "key": idempotency_key}
-    ).first()
-    if row is None:
+    found = _TRIAL_TO_MEASURE.execute(
+        db, {"trial_id": trial_id, "scope": "measurements", "key": idempotency_key}
+    ).fetchone()
+    if found is None:
         raise NotFound(f"trial {trial_id} not found")
+    row = _TrialToMeasure._make(found)
     if row.key_seen:
         _check_key_unused(db, idempotency_key, digest)
     if row.status not in MEASURABLE:
@@ -244,7 +252,7 @@ def add_measurements(
     completes = row.status in (lc.QUEUED, lc.RUNNING) and not row.leased
     trial: Any = session.identity_map.get(_TRIAL_KEY((trial_id,)))
     if trial is None:
-        trial = session.get(Trial, trial_id) if completes else SimpleNamespace(**row._mapping)
+        trial = session.get(Trial, trial_id) if completes else SimpleNamespace(**row._asdict())
     stored = store_measurement(session, trial, values, actor=actor, source="operator")
     if completes:
         lc.transition(
@@ -260,8 +268,8 @@ def add_measurements(
         stored=stored,
     )
     try:
-        db.execute(
-            _INSERT_KEY,
+        _INSERT_KEY.execute(
+            db,
             {
                 "scope": "measurements",
                 "key": idempotency_key,
@@ -276,6 +284,6 @@ def add_measurements(
         session.rollback()
         _check_key_unused(session.connection(), idempotency_key, digest)
         raise
-    touch_id(session, trial.experiment_id)
+    touch_id(session, trial.experiment_id, connection=db)
     session.commit()  # one commit; a flush only when the status changed
     return receipt
