@@ -8,10 +8,11 @@ receipt (the repeats stored, the trial's new objective). Raw:
 with the same pragmas (WAL, ``--synchronous`` FULL by default, as the server) on the same
 database file, same trials. Also timed: the service function alone (no HTTP), the same
 posts from ``http.client`` (the server's rate without httpx's own per-request cost) and
-``GET /health`` from HandfulClient (the HTTP floor of any call). Rounds rotate the order;
-medians.
+``GET /health`` from HandfulClient (the HTTP floor of any call), and the API's throughput
+with ``--clients`` HandfulClients posting at once (a lab's workers and operator: the server
+works on one post while the others are on the wire). Rounds rotate the order; medians.
 
-    python benchmarks/service_measurements.py [--writes 300] [--rounds 3] [--clients 1]
+    python benchmarks/service_measurements.py [--writes 300] [--rounds 3] [--clients 4]
         [--synchronous FULL|NORMAL]
 """
 
@@ -40,18 +41,25 @@ from app.db.session import make_engine, make_sessionmaker
 
 
 def api_round(url: str, token: str, trial_ids: list[int], writes: int, clients: int) -> float:
-    """Writes/s of ``writes`` measurement posts split over ``clients`` threads."""
+    """Writes/s of ``writes`` measurement posts split over ``clients`` threads, each with its
+    own keep-alive HandfulClient (connected before the clock starts)."""
     per = writes // clients
+    conns = [HandfulClient(url, token) for _ in range(clients)]
+    for c in conns:
+        c.request("GET", "/health")  # open the connection
+
+    failed: list[BaseException] = []
 
     def work(k: int) -> None:
-        with HandfulClient(url, token) as c:
+        try:
             for i in range(per):
-                tid = trial_ids[(k * per + i) % len(trial_ids)]
-                c.add_measurements(
-                    tid,
+                conns[k].add_measurements(
+                    trial_ids[(k * per + i) % len(trial_ids)],
                     [{"value": 2.0 + 0.001 * i, "unit": "m/s"}],
                     idempotency_key=uuid.uuid4().hex,
                 )
+        except BaseException as exc:  # a failed post must not pass for a fast one
+            failed.append(exc)
 
     threads = [threading.Thread(target=work, args=(k,)) for k in range(clients)]
     t0 = time.perf_counter()
@@ -59,7 +67,12 @@ def api_round(url: str, token: str, trial_ids: list[int], writes: int, clients: 
         t.start()
     for t in threads:
         t.join()
-    return per * clients / (time.perf_counter() - t0)
+    rate = per * clients / (time.perf_counter() - t0)
+    for c in conns:
+        c.close()
+    if failed:
+        raise failed[0]
+    return rate
 
 
 def floor_round(url: str, token: str, n: int) -> float:
@@ -147,12 +160,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--writes", type=int, default=300)
     ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--clients", type=int, default=1)
+    ap.add_argument("--clients", type=int, default=4)
     ap.add_argument("--trials", type=int, default=100)
     ap.add_argument("--synchronous", choices=("FULL", "NORMAL"), default="FULL")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
-    rounds: dict[str, list[float]] = {k: [] for k in ("raw", "api", "lean", "service", "health")}
+    names = ("raw", "api", "lean", "concurrent", "service", "health")
+    rounds: dict[str, list[float]] = {k: [] for k in names}
     with (
         tempfile.TemporaryDirectory() as tmp,
         bench_server(Path(tmp), env={"HANDFUL_SQLITE_SYNCHRONOUS": args.synchronous}) as srv,
@@ -166,8 +180,11 @@ def main() -> None:
         api_round(srv.url, srv.token, trial_ids, 20, 1)  # warm-up
         runs = {
             "raw": lambda: raw_round(srv.db_url, trial_ids, args.writes, args.synchronous),
-            "api": lambda: api_round(srv.url, srv.token, trial_ids, args.writes, args.clients),
+            "api": lambda: api_round(srv.url, srv.token, trial_ids, args.writes, 1),
             "lean": lambda: lean_round(srv.url, srv.token, trial_ids, args.writes),
+            "concurrent": lambda: api_round(
+                srv.url, srv.token, trial_ids, args.writes, args.clients
+            ),
             "service": lambda: service_round(srv.db_url, trial_ids, args.writes, args.synchronous),
             "health": lambda: floor_round(srv.url, srv.token, args.writes),
         }
@@ -180,14 +197,15 @@ def main() -> None:
     r = med["raw"]
     what = {
         "raw": "raw SQLAlchemy insert + commit",
-        "api": f"API, HandfulClient (httpx), {args.clients} client(s)",
+        "api": "API, HandfulClient (httpx), 1 client",
         "lean": "API, http.client (1 connection)",
+        "concurrent": f"API, {args.clients} HandfulClients at once",
         "service": "service function alone (no HTTP)",
         "health": "GET /health from HandfulClient",
     }
     print(f"synchronous={args.synchronous}, {args.writes} writes x {args.rounds} rounds (medians)")
     print(f"  {'':44s} {'per s':>9s} {'ms each':>8s} {'/ raw':>7s}")
-    for k in ("raw", "api", "lean", "service", "health"):
+    for k in names:
         print(f"  {what[k]:44s} {med[k]:9.1f} {1e3 / med[k]:8.2f} {med[k] / r:7.3f}")
     print("  rounds:", {k: [round(x, 1) for x in v] for k, v in rounds.items()})
     if args.json:
