@@ -110,6 +110,13 @@ class Database:
             self.write_engine = self.engine
             self._write = make_sessionmaker(self.engine, write=True)
 
+    def writer_idle(self) -> bool:
+        """True when no session of this process holds SQLite's write connection right now
+        (always False on PostgreSQL, whose writers can wait on row locks)."""
+        if self.write_engine is self.engine:
+            return False
+        return self.write_engine.pool.checkedout() == 0  # type: ignore[attr-defined]
+
     @contextmanager
     def read(self) -> Iterator[Session]:
         """A session for reading; whatever it did is rolled back at the end."""

@@ -16,6 +16,7 @@ from app.api.deps import (
     SettingsDep,
     WriteSession,
     json_response,
+    run_write,
 )
 from app.service import artifacts, measurements, runs, trials
 from app.service.schemas import (
@@ -39,10 +40,10 @@ def get_trial(trial_id: int, session: ReadSession, _: Reader) -> Response:
 
 
 @router.post("/trials/{trial_id}/measurements", status_code=201, response_model=MeasurementReceipt)
-def add_measurements(
+async def add_measurements(
     trial_id: int,
     body: MeasurementsIn,
-    session: WriteSession,
+    db: DbDep,
     actor: Operator,
     idempotency_key: str | None = Header(None, alias="Idempotency-Key"),
 ) -> Response:
@@ -52,8 +53,11 @@ def add_measurements(
     every repeat and its audit trail, is ``GET /trials/{id}``). A replayed post (same key,
     same body) is a 409 ``duplicate_request`` carrying the first post's ``receipt``.
     """
-    receipt = measurements.add_measurements(
-        session, trial_id, body, idempotency_key=idempotency_key, actor=actor
+    receipt = await run_write(
+        db,
+        lambda s: measurements.add_measurements(
+            s, trial_id, body, idempotency_key=idempotency_key, actor=actor
+        ),
     )
     return json_response(receipt, status_code=201)
 
