@@ -10,7 +10,8 @@ database file, same trials. Also timed: the service function alone (no HTTP), th
 posts from ``http.client`` (the server's rate without httpx's own per-request cost) and
 ``GET /health`` from HandfulClient (the HTTP floor of any call), and the API's throughput
 with ``--clients`` HandfulClients posting at once (a lab's workers and operator: the server
-works on one post while the others are on the wire). Rounds rotate the order; medians.
+works on one post while the others are on the wire). Rounds rotate the order; the ratios
+are medians of each round's ratio to its own raw run.
 
     python benchmarks/service_measurements.py [--writes 300] [--rounds 3] [--clients 4]
         [--synchronous FULL|NORMAL]
@@ -194,7 +195,10 @@ def main() -> None:
                 rounds[name].append(runs[name]())
         api.close()
     med = {k: statistics.median(v) for k, v in rounds.items()}
-    r = med["raw"]
+    # each round's ratio to that round's raw run (minutes apart at most), then their median:
+    # this VM's speed drifts by tens of percent between rounds
+    ratios = {k: [x / y for x, y in zip(v, rounds["raw"], strict=True)] for k, v in rounds.items()}
+    ratio = {k: statistics.median(v) for k, v in ratios.items()}
     what = {
         "raw": "raw SQLAlchemy insert + commit",
         "api": "API, HandfulClient (httpx), 1 client",
@@ -204,16 +208,18 @@ def main() -> None:
         "health": "GET /health from HandfulClient",
     }
     print(f"synchronous={args.synchronous}, {args.writes} writes x {args.rounds} rounds (medians)")
-    print(f"  {'':44s} {'per s':>9s} {'ms each':>8s} {'/ raw':>7s}")
+    print(f"  {'':44s} {'per s':>9s} {'ms each':>8s} {'/ raw':>7s}  per round / raw")
     for k in names:
-        print(f"  {what[k]:44s} {med[k]:9.1f} {1e3 / med[k]:8.2f} {med[k] / r:7.3f}")
+        spread = f"{min(ratios[k]):.3f}-{max(ratios[k]):.3f}"
+        print(f"  {what[k]:44s} {med[k]:9.1f} {1e3 / med[k]:8.2f} {ratio[k]:7.3f}  {spread}")
     print("  rounds:", {k: [round(x, 1) for x in v] for k, v in rounds.items()})
     if args.json:
         args.json.write_text(
             json.dumps(
                 {
                     "per_s": med,
-                    "ratio": {k: v / r for k, v in med.items()},
+                    "ratio": ratio,
+                    "ratios": ratios,
                     "rounds": rounds,
                     "clients": args.clients,
                     "synchronous": args.synchronous,
