@@ -25,6 +25,11 @@ T = TypeVar("T")
 # of its pool, and each such hop costs more than the work (a dict lookup, an indexed SELECT).
 # Sync routes still run in the pool, so their queries never block the event loop; on the
 # loop run only the token lookup and ``run_write``'s short writes while the writer is free.
+#
+# Writes open their session in the route body (``with db.write() as session:``), not
+# through a yield dependency: a dependency's exit runs on the event loop, and a write
+# transaction whose commit waits for the loop could hold SQLite's one write connection while
+# ``run_write`` on the loop waits for it.
 
 
 async def get_settings(request: Request) -> Settings:
@@ -42,12 +47,6 @@ async def get_previews(request: Request) -> PreviewRunner:
 async def read_session(db: Annotated[Database, Depends(get_db)]) -> AsyncIterator[Session]:
     """A read-only session (rolled back at the end)."""
     with db.read() as s:
-        yield s
-
-
-async def write_session(db: Annotated[Database, Depends(get_db)]) -> AsyncIterator[Session]:
-    """A session holding the write lock once used; the service function commits its work."""
-    with db.write() as s:
         yield s
 
 
@@ -75,7 +74,6 @@ async def run_write(db: Database, work: Callable[[Session], T]) -> T:
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 DbDep = Annotated[Database, Depends(get_db)]
 ReadSession = Annotated[Session, Depends(read_session)]
-WriteSession = Annotated[Session, Depends(write_session)]
 PreviewsDep = Annotated[PreviewRunner, Depends(get_previews)]
 
 ANONYMOUS = Actor("anonymous", VIEWER)

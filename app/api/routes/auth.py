@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from app.api.deps import AnyUser, WriteSession
+from app.api.deps import AnyUser, DbDep
 from app.service import auth
 from app.service.schemas import LoginIn, LoginRead, UserRead
 
@@ -12,10 +12,11 @@ router = APIRouter(tags=["auth"])
 
 
 @router.post("/auth/login")
-def login(body: LoginIn, session: WriteSession) -> LoginRead:
+def login(body: LoginIn, db: DbDep) -> LoginRead:
     """Exchange a username and password for a new API token."""
-    token, user = auth.login(session, body.username, body.password)
-    return LoginRead(token=token, user=UserRead(username=user.username, role=user.role))
+    with db.write() as session:
+        token, user = auth.login(session, body.username, body.password)
+        return LoginRead(token=token, user=UserRead(username=user.username, role=user.role))
 
 
 @router.get("/me")

@@ -12,7 +12,7 @@ from fastapi import APIRouter, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import PlainTextResponse, StreamingResponse
 
-from app.api.deps import DbDep, Operator, Reader, ReadSession, WriteSession
+from app.api.deps import DbDep, Operator, Reader, ReadSession
 from app.service import data, experiments, trials
 from app.service.errors import NotFound
 from app.service.schemas import (
@@ -32,12 +32,11 @@ router = APIRouter(prefix="/experiments", tags=["experiments"])
 
 
 @router.post("", status_code=201)
-def create_experiment(
-    body: ExperimentCreate, session: WriteSession, actor: Operator
-) -> ExperimentRead:
+def create_experiment(body: ExperimentCreate, db: DbDep, actor: Operator) -> ExperimentRead:
     """Create an experiment (task, target, policy P/H/release, limits, optimiser, budget)."""
-    exp = experiments.create_experiment(session, body, actor=actor)
-    return experiments.read_experiment(session, exp.id)
+    with db.write() as session:
+        exp = experiments.create_experiment(session, body, actor=actor)
+        return experiments.read_experiment(session, exp.id)
 
 
 @router.get("")
@@ -54,10 +53,11 @@ def get_experiment(experiment_id: int, session: ReadSession, _: Reader) -> Exper
 
 @router.patch("/{experiment_id}")
 def patch_experiment(
-    experiment_id: int, body: ExperimentPatch, session: WriteSession, actor: Operator
+    experiment_id: int, body: ExperimentPatch, db: DbDep, actor: Operator
 ) -> ExperimentRead:
     """Change an experiment's status, notes or budget."""
-    return experiments.patch_experiment(session, experiment_id, body, actor=actor)
+    with db.write() as session:
+        return experiments.patch_experiment(session, experiment_id, body, actor=actor)
 
 
 @router.get("/{experiment_id}/trials")
@@ -91,11 +91,10 @@ def suggest(
 
 
 @router.post("/{experiment_id}/trials", status_code=201)
-def attach_trial(
-    experiment_id: int, body: AttachIn, session: WriteSession, actor: Operator
-) -> TrialRead:
+def attach_trial(experiment_id: int, body: AttachIn, db: DbDep, actor: Operator) -> TrialRead:
     """Add a trial with a θ the operator chose."""
-    return trials.attach(session, experiment_id, body.theta, note=body.note, actor=actor)
+    with db.write() as session:
+        return trials.attach(session, experiment_id, body.theta, note=body.note, actor=actor)
 
 
 @router.get("/{experiment_id}/export", response_model=None)
@@ -120,10 +119,11 @@ def export(
 
 @router.post("/{experiment_id}/import", status_code=201)
 def import_observations(
-    experiment_id: int, body: ImportIn, session: WriteSession, actor: Operator
+    experiment_id: int, body: ImportIn, db: DbDep, actor: Operator
 ) -> list[TrialRead]:
     """Import past observations (θ, objective) as completed trials."""
-    return data.import_observations(session, experiment_id, body, actor=actor)
+    with db.write() as session:
+        return data.import_observations(session, experiment_id, body, actor=actor)
 
 
 @router.get("/{experiment_id}/model")

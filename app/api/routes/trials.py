@@ -14,7 +14,6 @@ from app.api.deps import (
     Reader,
     ReadSession,
     SettingsDep,
-    WriteSession,
     json_response,
     run_write,
 )
@@ -63,27 +62,31 @@ async def add_measurements(
 
 
 @router.post("/trials/{trial_id}/fail")
-def fail(trial_id: int, body: ReasonIn, session: WriteSession, actor: Operator) -> TrialRead:
+def fail(trial_id: int, body: ReasonIn, db: DbDep, actor: Operator) -> TrialRead:
     """Mark a trial failed, with a reason (aborts it if running)."""
-    return trials.fail(session, trial_id, body.reason, actor=actor)
+    with db.write() as session:
+        return trials.fail(session, trial_id, body.reason, actor=actor)
 
 
 @router.post("/trials/{trial_id}/abandon")
-def abandon(trial_id: int, body: ReasonIn, session: WriteSession, actor: Operator) -> TrialRead:
+def abandon(trial_id: int, body: ReasonIn, db: DbDep, actor: Operator) -> TrialRead:
     """Abandon a trial: it never runs and is never suggested again."""
-    return trials.abandon(session, trial_id, body.reason, actor=actor)
+    with db.write() as session:
+        return trials.abandon(session, trial_id, body.reason, actor=actor)
 
 
 @router.post("/trials/{trial_id}/resolve")
-def resolve(trial_id: int, body: ResolveIn, session: WriteSession, actor: Operator) -> TrialRead:
+def resolve(trial_id: int, body: ResolveIn, db: DbDep, actor: Operator) -> TrialRead:
     """Decide a needs_review trial: requeue, fail, complete or abandon."""
-    return trials.resolve(session, trial_id, body, actor=actor)
+    with db.write() as session:
+        return trials.resolve(session, trial_id, body, actor=actor)
 
 
 @router.post("/trials/{trial_id}/confirm")
-def confirm(trial_id: int, body: ConfirmIn, session: WriteSession, actor: Operator) -> TrialRead:
+def confirm(trial_id: int, body: ConfirmIn, db: DbDep, actor: Operator) -> TrialRead:
     """Confirm a hardware trial's exact schedule (by its hash) so a worker may run it."""
-    return trials.confirm(session, trial_id, body.schedule_hash, actor=actor)
+    with db.write() as session:
+        return trials.confirm(session, trial_id, body.schedule_hash, actor=actor)
 
 
 @router.post("/trials/{trial_id}/run")

@@ -7,7 +7,7 @@ from typing import Any
 from fastapi import APIRouter
 from fastapi.responses import Response
 
-from app.api.deps import SettingsDep, WorkerOrOperator, WriteSession, json_response
+from app.api.deps import DbDep, SettingsDep, WorkerOrOperator, json_response
 from app.service import leases
 from app.service.schemas import ClaimIn, ClaimRead, LeaseRead, ResultIn, ResultRead
 
@@ -15,49 +15,50 @@ router = APIRouter(tags=["workers"])
 
 
 @router.post("/workers/claim", response_model=list[ClaimRead])
-def claim(
-    body: ClaimIn, session: WriteSession, settings: SettingsDep, actor: WorkerOrOperator
-) -> Response:
+def claim(body: ClaimIn, db: DbDep, settings: SettingsDep, actor: WorkerOrOperator) -> Response:
     """Claim up to max_trials queued trials of a target, each under a lease."""
-    claims = leases.claim(
-        session,
-        body,
-        actor=actor,
-        lease_seconds=settings.lease_seconds,
-        max_attempts=settings.max_attempts,
-    )
-    return json_response(claims)
+    with db.write() as session:
+        claims = leases.claim(
+            session,
+            body,
+            actor=actor,
+            lease_seconds=settings.lease_seconds,
+            max_attempts=settings.max_attempts,
+        )
+        return json_response(claims)
 
 
 @router.post("/leases/{lease_id}/heartbeat")
 def heartbeat(
-    lease_id: str, session: WriteSession, settings: SettingsDep, actor: WorkerOrOperator
+    lease_id: str, db: DbDep, settings: SettingsDep, actor: WorkerOrOperator
 ) -> LeaseRead:
     """Keep a lease alive for another lease_seconds."""
-    return leases.heartbeat(
-        session,
-        lease_id,
-        actor=actor,
-        lease_seconds=settings.lease_seconds,
-        max_attempts=settings.max_attempts,
-    )
+    with db.write() as session:
+        return leases.heartbeat(
+            session,
+            lease_id,
+            actor=actor,
+            lease_seconds=settings.lease_seconds,
+            max_attempts=settings.max_attempts,
+        )
 
 
 @router.post("/trials/{trial_id}/result", response_model=ResultRead)
 def result(
     trial_id: int,
     body: ResultIn,
-    session: WriteSession,
+    db: DbDep,
     settings: SettingsDep,
     actor: WorkerOrOperator,
 ) -> dict[str, Any]:
     """Report what was executed and measured for a leased trial (idempotent per lease)."""
-    return leases.report_result(
-        session,
-        trial_id,
-        body,
-        actor=actor,
-        artifacts_dir=settings.artifacts_dir,
-        max_attempts=settings.max_attempts,
-        max_bytes=settings.max_body_bytes,
-    )
+    with db.write() as session:
+        return leases.report_result(
+            session,
+            trial_id,
+            body,
+            actor=actor,
+            artifacts_dir=settings.artifacts_dir,
+            max_attempts=settings.max_attempts,
+            max_bytes=settings.max_body_bytes,
+        )
