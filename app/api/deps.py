@@ -63,8 +63,10 @@ async def run_write(db: Database, work: Callable[[Session], T]) -> T:
     pool thread and back costs more than such a transaction (0.3-0.5 ms of a 2-3 ms post on
     the development VM). When another writer holds it, or on PostgreSQL, it runs in the
     threadpool, so the loop never waits for someone else's transaction. (A writer that takes
-    the connection between the check and our first statement can still make the loop wait
-    for one short transaction; long work never runs inside a write session here.)
+    the connection between the check and our first statement, or another program holding
+    SQLite's lock, such as ``handful user add``, can still make the loop wait for one short
+    transaction: write transactions here never run long work and always end in the thread
+    that opened them.)
     """
     if db.writer_idle():
         return _write(db, work)
