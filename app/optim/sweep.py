@@ -606,11 +606,11 @@ def run_sweep(
                 bar_runs.update(1)
                 refresh()
         elif todo and backend == "local":
-            import multiprocessing as mp
-            from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+            from concurrent.futures import FIRST_COMPLETED, wait
 
-            ctx = mp.get_context("spawn")
-            with ProcessPoolExecutor(max_workers=min(n_workers, len(todo)), mp_context=ctx) as ex:
+            from app.procs import process_pool
+
+            with process_pool(min(n_workers, len(todo))) as ex:
                 futs = {ex.submit(_run_one_in_worker, s, str(out)): s for s in todo}
                 pending = set(futs)
                 while pending:

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import os
 from collections.abc import Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
 import numpy as np
 
+from app.procs import process_pool
 from app.sim.model import effective_params
 from app.sim.params import ArmParams
 from app.sim.presets import Preset, get_preset
@@ -79,11 +78,10 @@ class RolloutPool:
         if self.n_workers < 1:
             raise ValueError(f"n_workers must be ≥ 1, got {n_workers}")
         rec_q = record_qpos
-        self._executor = ProcessPoolExecutor(
-            max_workers=self.n_workers,
-            mp_context=mp.get_context("spawn"),
-            initializer=_init_worker,
-            initargs=(task, self.preset, params, {"record_hz": record_hz, "record_qpos": rec_q}),
+        self._executor = process_pool(
+            self.n_workers,
+            _init_worker,
+            (task, self.preset, params, {"record_hz": record_hz, "record_qpos": rec_q}),
         )
 
     def warm_up(self) -> None:

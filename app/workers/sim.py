@@ -13,15 +13,15 @@ import dataclasses
 import io
 import logging
 import math
-import multiprocessing as mp
 import time
 from collections.abc import Mapping
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from app.procs import process_pool
 from app.workers.common import (
     LeaseKeeper,
     PermanentError,
@@ -213,11 +213,8 @@ class SimWorker:
         ran = 0
         idle_since = time.monotonic()
         delay = 0.05
-        with ProcessPoolExecutor(
-            max_workers=self.max_parallel,
-            mp_context=mp.get_context("spawn"),  # no fork after the heartbeat thread starts
-            initializer=_warm_up,
-        ) as pool:
+        # spawn (no fork after the heartbeat thread starts); gone if this worker is killed
+        with process_pool(self.max_parallel, _warm_up) as pool:
             try:
                 while True:
                     room = self.max_parallel + self.prefetch - len(in_flight)
