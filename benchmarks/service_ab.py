@@ -27,13 +27,11 @@ import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from service_common import seed_database
 from tqdm import tqdm
 
 from app.client import HandfulClient
-from app.db.migrate import upgrade
-from app.db.session import Database
 from app.devserver import free_port, wait_healthy
-from app.service.auth import add_user, create_token
 
 
 @dataclass
@@ -55,13 +53,7 @@ def _cpu_s(pid: int) -> float:
 def start(tree: Path) -> Side:
     """Migrate a fresh file, add an operator, serve ``tree``'s app on a free port."""
     data = Path(tempfile.mkdtemp(prefix="handful-ab-"))
-    url = f"sqlite:///{data / 'handful.db'}"
-    upgrade(url)
-    db = Database(url)
-    with db.write() as s:
-        add_user(s, "bench", "operator")
-        token = create_token(s, "bench")
-    db.dispose()
+    _, token = seed_database(data)
     port = free_port()
     env = {
         **os.environ,

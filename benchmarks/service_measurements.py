@@ -25,14 +25,13 @@ import json
 import statistics
 import sys
 import tempfile
-import threading
 import time
 import uuid
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from service_common import bench_server
+from service_common import bench_server, run_in_threads
 from tqdm import tqdm
 
 from app.client import HandfulClient
@@ -49,30 +48,19 @@ def api_round(url: str, token: str, trial_ids: list[int], writes: int, clients: 
     for c in conns:
         c.request("GET", "/health")  # open the connection
 
-    failed: list[BaseException] = []
-
     def work(k: int) -> None:
-        try:
-            for i in range(per):
-                conns[k].add_measurements(
-                    trial_ids[(k * per + i) % len(trial_ids)],
-                    [{"value": 2.0 + 0.001 * i, "unit": "m/s"}],
-                    idempotency_key=uuid.uuid4().hex,
-                )
-        except BaseException as exc:  # a failed post must not pass for a fast one
-            failed.append(exc)
+        for i in range(per):
+            conns[k].add_measurements(
+                trial_ids[(k * per + i) % len(trial_ids)],
+                [{"value": 2.0 + 0.001 * i, "unit": "m/s"}],
+                idempotency_key=uuid.uuid4().hex,
+            )
 
-    threads = [threading.Thread(target=work, args=(k,)) for k in range(clients)]
-    t0 = time.perf_counter()
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
-    rate = per * clients / (time.perf_counter() - t0)
-    for c in conns:
-        c.close()
-    if failed:
-        raise failed[0]
+    try:
+        rate = per * clients / run_in_threads(clients, work)
+    finally:
+        for c in conns:
+            c.close()
     return rate
 
 

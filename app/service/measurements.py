@@ -258,15 +258,7 @@ def add_measurements(
         lc.transition(
             session, trial, lc.COMPLETED, actor=actor.username, reason="measured by the operator"
         )
-    receipt = MeasurementReceipt(
-        trial_id=trial.id,
-        experiment_id=trial.experiment_id,
-        status=trial.status,
-        objective=trial.objective,
-        objective_sem=trial.objective_sem,
-        n_measurements=trial.n_measurements,
-        stored=stored,
-    )
+    receipt = MeasurementReceipt.build(trial, stored)
     try:
         _INSERT_KEY.execute(
             db,

@@ -336,6 +336,19 @@ class MeasurementReceipt(BaseModel):
     n_measurements: int
     stored: list[MeasurementRead] = Field(description="the repeats this post stored, in order")
 
+    @classmethod
+    def build(cls, trial: Any, stored: list[MeasurementRead]) -> MeasurementReceipt:
+        """From a Trial (or any object with its id, status and objective fields)."""
+        return cls(
+            trial_id=trial.id,
+            experiment_id=trial.experiment_id,
+            status=trial.status,
+            objective=trial.objective,
+            objective_sem=trial.objective_sem,
+            n_measurements=trial.n_measurements,
+            stored=stored,
+        )
+
 
 class TrialDetail(TrialRead):
     """A trial with its raw measurements and its audit trail."""
