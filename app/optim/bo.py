@@ -9,16 +9,16 @@ Two search representations:
     of its action (``g``'s digits, each scaled to [0,1]) and the release step to [0,1], so the
     GP sees pressures rather than action indices; the acquisition is optimised over the level
     grid by discrete local search and the result is mapped back to the centre of its θ bin.
+
+Reads no environment and sets no process-wide state: torch's thread count is the entry
+point's choice (``app.procs.set_torch_threads``: the server, the sweep, the benchmarks).
 """
 
 from __future__ import annotations
 
 import math
-import os
 import threading
 import warnings
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -42,7 +42,7 @@ from botorch.optim import optimize_acqf
 from botorch.sampling import SobolQMCNormalSampler
 from gpytorch.mlls import ExactMarginalLogLikelihood
 
-from app.optim.base import Optimizer, SettingsError, call_seed
+from app.optim.base import Optimizer, SettingsError, Surrogate, call_seed
 
 ACQUISITIONS = ("logei", "ucb", "qlognei")
 MODEL_PRESETS = ("paper", "default")
@@ -53,25 +53,6 @@ N_PAIRED = 6  # paired commands per action (see app.policy)
 DTYPE = torch.float64
 # Torch's RNG is process-global; fork it per call under a lock so threads cannot interleave.
 _TORCH_RNG_LOCK = threading.Lock()
-#: intra-op threads for GP fits and acquisition searches. These GPs are small (N ≤ ~1000), so
-#: one thread is as fast as two on an idle machine and several times faster on a busy one
-#: (N = 100, D = 11: 1.5 s with 1 thread vs 11-13 s with 2, at load average 9 on 2 cores).
-#: Parallelism comes from running many optimisers/rollouts side by side instead.
-TORCH_THREADS = max(1, int(os.environ.get("HANDFUL_TORCH_THREADS", "1")))
-
-
-@contextmanager
-def _torch_threads() -> Iterator[None]:
-    """Run the enclosed torch work on ``TORCH_THREADS`` threads; restore the setting after."""
-    before = torch.get_num_threads()
-    if before == TORCH_THREADS:
-        yield
-        return
-    torch.set_num_threads(TORCH_THREADS)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
 
 
 @dataclass(frozen=True)
@@ -297,7 +278,7 @@ def _unit_bounds(f: int) -> torch.Tensor:
     return torch.stack([torch.zeros(f, dtype=DTYPE), torch.ones(f, dtype=DTYPE)])
 
 
-class BayesOpt(Optimizer):
+class BayesOpt(Optimizer, Surrogate):
     """GP-based BO on [0,1]^dim.
 
     Settings:
@@ -368,7 +349,7 @@ class BayesOpt(Optimizer):
             raise SettingsError("the GP needs at least 2 observations")
         if self._model is None or self._model_n != self.n_observed:
             tx, ty, tyvar = self._train_tensors()
-            with _TORCH_RNG_LOCK, _torch_threads(), torch.random.fork_rng():
+            with _TORCH_RNG_LOCK, torch.random.fork_rng():
                 torch.manual_seed(call_seed(self.seed, self.n_observed, 0, salt=1))
                 self._model = fit_gp(
                     build_gp(tx, ty, tyvar, self.settings.model_preset),
@@ -565,7 +546,7 @@ class BayesOpt(Optimizer):
         seed = call_seed(self.seed, self.n_observed, len(pending))
         model = self.model()
         pend = torch.as_tensor(self._features(pending), dtype=DTYPE) if len(pending) else None
-        with _TORCH_RNG_LOCK, _torch_threads(), torch.random.fork_rng():
+        with _TORCH_RNG_LOCK, torch.random.fork_rng():
             torch.manual_seed(seed)
             acq = self._acquisition(model, pend, q, seed)
             if self._use_levels:
