@@ -3,6 +3,8 @@ arguments."""
 
 from __future__ import annotations
 
+import hashlib
+import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -39,8 +41,13 @@ class RunSpec:
 
     @property
     def key(self) -> str:
-        """File-name stem of this run's cache (the budget is not part of it: longer runs reuse)."""
-        return f"{self.task}_P{self.levels}_{self.name}_s{self.seed}_{self.preset}"
+        """File-name stem of this run's cache (the budget is not part of it: longer runs reuse).
+        Settings without a label of their own add a short tag of them, so runs never mix."""
+        key = f"{self.task}_P{self.levels}_{self.name}_s{self.seed}_{self.preset}"
+        if self.settings and self.label is None:
+            blob = json.dumps(self.settings, sort_keys=True, default=str)
+            key += "_" + hashlib.sha1(blob.encode()).hexdigest()[:8]
+        return key
 
     @property
     def with_release(self) -> bool:
