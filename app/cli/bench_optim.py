@@ -52,7 +52,8 @@ def optim(
 ) -> None:
     """Run BO, CEM, random search, Optuna and CMA-ES on the simulated tasks; write
     DIR/results.csv, DIR/summary.md and DIR/curves.png. Finished runs are cached and skipped."""
-    from app.optim import METHODS, SettingsError, sweep
+    from app import bench
+    from app.optim import METHODS, SettingsError
 
     tasks = _split(task, ["throw"])
     ps = _ints("levels", _split(levels, ["2"]))
@@ -71,18 +72,18 @@ def optim(
     if preset not in PRESETS:
         _fail(f"unknown --preset {preset!r}; choose from {', '.join(PRESETS)}")
     try:
-        specs = sweep.make_specs(
+        specs = bench.make_specs(
             methods=chosen, tasks=tasks, levels=ps, budgets=budgets, seeds=seeds, preset=preset
         )
     except SettingsError as exc:
         _fail(str(exc))
     if cached_only:
-        runs = {s: r for s in specs if (r := sweep.stored_rows(s, out))}
+        runs = {s: r for s in specs if (r := bench.stored_rows(s, out))}
         if not runs:
             _fail(f"no runs of this sweep stored in {out}")
         specs = [s for s in specs if s in runs]
     else:
-        runs = sweep.run_sweep(
+        runs = bench.run_sweep(
             specs,
             out,
             backend=backend,
@@ -90,7 +91,7 @@ def optim(
             workers=workers or None,
             progress=progress,
         )
-    sweep.write_outputs(out, specs, runs, budgets)
+    bench.write_outputs(out, specs, runs, budgets)
     typer.echo((out / "summary.md").read_text())
     typer.echo(f"wrote {out / 'results.csv'}, {out / 'summary.md'}, {out / 'curves.png'}")
 

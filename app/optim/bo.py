@@ -9,16 +9,16 @@ Two search representations:
     of its action (``g``'s digits, each scaled to [0,1]) and the release step to [0,1], so the
     GP sees pressures rather than action indices; the acquisition is optimised over the level
     grid by discrete local search and the result is mapped back to the centre of its θ bin.
+
+Reads no environment and sets no process-wide state: torch's thread count is the entry
+point's choice (``app.procs.set_torch_threads``: the server, the sweep, the benchmarks).
 """
 
 from __future__ import annotations
 
 import math
-import os
 import threading
 import warnings
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -42,36 +42,18 @@ from botorch.optim import optimize_acqf
 from botorch.sampling import SobolQMCNormalSampler
 from gpytorch.mlls import ExactMarginalLogLikelihood
 
-from app.optim.base import Optimizer, SettingsError, call_seed
+from app.optim.base import Optimizer, SettingsError, Surrogate, call_seed
 
 ACQUISITIONS = ("logei", "ucb", "qlognei")
 MODEL_PRESETS = ("paper", "default")
 SPACES = ("theta", "levels")
 INITIAL_DESIGNS = ("sobol", "corners")
+FIT_MODES = ("full", "warm")
 N_PAIRED = 6  # paired commands per action (see app.policy)
 
 DTYPE = torch.float64
 # Torch's RNG is process-global; fork it per call under a lock so threads cannot interleave.
 _TORCH_RNG_LOCK = threading.Lock()
-#: intra-op threads for GP fits and acquisition searches. These GPs are small (N ≤ ~1000), so
-#: one thread is as fast as two on an idle machine and several times faster on a busy one
-#: (N = 100, D = 11: 1.5 s with 1 thread vs 11-13 s with 2, at load average 9 on 2 cores).
-#: Parallelism comes from running many optimisers/rollouts side by side instead.
-TORCH_THREADS = max(1, int(os.environ.get("HANDFUL_TORCH_THREADS", "1")))
-
-
-@contextmanager
-def _torch_threads() -> Iterator[None]:
-    """Run the enclosed torch work on ``TORCH_THREADS`` threads; restore the setting after."""
-    before = torch.get_num_threads()
-    if before == TORCH_THREADS:
-        yield
-        return
-    torch.set_num_threads(TORCH_THREADS)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
 
 
 @dataclass(frozen=True)
@@ -93,6 +75,10 @@ class BOSettings:
     fit_maxiter: int | None = None
     trust_region: bool = False
     distinct: bool = False
+    fit_mode: str = "full"
+    refit_every: int = 10
+    refit_fraction: float = 0.1
+    warm_maxiter: int = 20
 
 
 def _check_settings(dim: int, settings: dict[str, Any]) -> BOSettings:
@@ -115,7 +101,14 @@ def _check_settings(dim: int, settings: dict[str, Any]) -> BOSettings:
         )
     if not (isinstance(s.kappa, int | float) and math.isfinite(s.kappa) and s.kappa >= 0):
         raise SettingsError(f"kappa must be a finite number ≥ 0, got {s.kappa!r}")
-    for name in ("num_restarts", "raw_samples", "mc_samples", "horizon"):
+    for name in (
+        "num_restarts",
+        "raw_samples",
+        "mc_samples",
+        "horizon",
+        "refit_every",
+        "warm_maxiter",
+    ):
         v = getattr(s, name)
         if isinstance(v, bool) or not isinstance(v, int) or v < 1:
             raise SettingsError(f"{name} must be an integer ≥ 1, got {v!r}")
@@ -127,6 +120,14 @@ def _check_settings(dim: int, settings: dict[str, Any]) -> BOSettings:
         isinstance(s.n_initial, bool) or not isinstance(s.n_initial, int) or s.n_initial < 2
     ):
         raise SettingsError(f"n_initial must be an integer ≥ 2, got {s.n_initial!r}")
+    if s.fit_mode not in FIT_MODES:
+        raise SettingsError(f"fit_mode must be one of {FIT_MODES}, got {s.fit_mode!r}")
+    if not (
+        isinstance(s.refit_fraction, int | float)
+        and not isinstance(s.refit_fraction, bool)
+        and 0.0 <= s.refit_fraction <= 10.0
+    ):
+        raise SettingsError(f"refit_fraction must be a number in [0, 10], got {s.refit_fraction!r}")
     if not isinstance(s.trust_region, bool):
         raise SettingsError(f"trust_region must be true or false, got {s.trust_region!r}")
     if s.trust_region and s.space != "theta":
@@ -192,6 +193,18 @@ def trust_region_state(y: np.ndarray, n_initial: int, dim: int) -> TrustRegion:
         if length < TR_LENGTH_MIN:
             length, successes, failures = TR_LENGTH_INIT, 0, 0
     return TrustRegion(length, successes, failures)
+
+
+def anchor_size(n: int, every: int, fraction: float) -> int:
+    """The largest anchor ≤ ``n``: the observation counts at which a ``fit_mode="warm"`` GP is
+    fitted from scratch. Anchors start at 2 and step by ``max(every, ceil(fraction · a))``, so
+    full fits thin out as the data grows (at N = 500 with 10 / 0.1: every 50 trials)."""
+    a = 2
+    while True:
+        nxt = a + max(every, math.ceil(fraction * a))
+        if nxt > n:
+            return a
+        a = nxt
 
 
 class LevelSpace:
@@ -293,11 +306,16 @@ def fit_gp(model: SingleTaskGP, maxiter: int | None = None) -> SingleTaskGP:
     return model
 
 
+def _raw_hyperparameters(model: SingleTaskGP) -> dict[str, torch.Tensor]:
+    """A fitted GP's raw hyperparameters (name → detached copy), to start another fit from."""
+    return {k: v.detach().clone() for k, v in model.named_parameters()}
+
+
 def _unit_bounds(f: int) -> torch.Tensor:
     return torch.stack([torch.zeros(f, dtype=DTYPE), torch.ones(f, dtype=DTYPE)])
 
 
-class BayesOpt(Optimizer):
+class BayesOpt(Optimizer, Surrogate):
     """GP-based BO on [0,1]^dim.
 
     Settings:
@@ -316,6 +334,11 @@ class BayesOpt(Optimizer):
             to its lowest/highest value with probability ``corner_prob``: bang-bang actions).
         trust_region: optimise the acquisition in TuRBO-1's box around the best observation,
             its sides scaled by the GP's lengthscales (see ``trust_region_state``).
+        fit_mode: "full" (the paper: every GP fitted from the priors' defaults) or "warm" (fit
+            from scratch every ``refit_every`` trials or ``refit_fraction`` of N, whichever is
+            more; start every other fit from the last such fit's hyperparameters, for at most
+            ``warm_maxiter`` L-BFGS-B iterations: near the optimum, more only wander along flat
+            directions of the likelihood).
         distinct: never suggest θ whose schedule (action indices and release step, see
             ``LevelSpace.keys``; needs ``levels``) was observed or is pending: the acquisition's
             best local optimum with a new schedule, else the best new one of its raw samples.
@@ -333,6 +356,8 @@ class BayesOpt(Optimizer):
             self.space = LevelSpace(s.levels or 2, s.horizon, self.dim == s.horizon + 1)
         self._model: SingleTaskGP | None = None
         self._model_n = -1
+        # fit_mode="warm": the last anchor's size and fitted raw hyperparameters
+        self._anchor: tuple[int, dict[str, torch.Tensor]] | None = None
 
     # --- representation -----------------------------------------------------------------------
     @property
@@ -349,8 +374,16 @@ class BayesOpt(Optimizer):
     def _on_observe(self) -> None:
         self._model = None
 
-    def _train_tensors(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    def _train_tensors(
+        self, n: int | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """(N, F) inputs, (N, 1) outcomes and (N, 1) noise variances or None, of the first ``n``
+        observations (all by default); the same tensors the model at ``n`` observations saw."""
         x, y, sem = self.train_data()
+        if n is not None:
+            x, y, sem = x[:n], y[:n], (None if sem is None else sem[:n])
+            if sem is not None and not np.isfinite(sem).any():
+                sem = None
         tx = torch.as_tensor(self._features(x), dtype=DTYPE)
         ty = torch.as_tensor(y, dtype=DTYPE).unsqueeze(-1)
         if sem is None:
@@ -362,19 +395,47 @@ class BayesOpt(Optimizer):
         yvar = np.maximum(filled**2, floor)
         return tx, ty, torch.as_tensor(yvar, dtype=DTYPE).unsqueeze(-1)
 
+    def _fit(self, n: int, start: dict[str, torch.Tensor] | None = None) -> SingleTaskGP:
+        """The GP of the first ``n`` observations, fitted from the priors' defaults or, with
+        ``start``, from those hyperparameters (raw parameter name → tensor)."""
+        tx, ty, tyvar = self._train_tensors(n)
+        with _TORCH_RNG_LOCK, torch.random.fork_rng():
+            torch.manual_seed(call_seed(self.seed, n, 0, salt=1))
+            gp = build_gp(tx, ty, tyvar, self.settings.model_preset)
+            maxiter = self.settings.fit_maxiter
+            if start is not None:
+                gp.load_state_dict(start, strict=False)
+                maxiter = min(maxiter or self.settings.warm_maxiter, self.settings.warm_maxiter)
+            return fit_gp(gp, maxiter)
+
     def model(self) -> SingleTaskGP:
-        """The GP fitted to all observations so far (refit after any new observation)."""
+        """The GP fitted to all observations so far (refit after any new observation).
+
+        ``fit_mode="full"`` (the paper) fits every GP from the priors' defaults.
+        ``fit_mode="warm"`` fits from scratch only at anchor sizes (``anchor_size``) and starts
+        every other fit from the last anchor's hyperparameters, a few L-BFGS-B steps instead of
+        about a hundred at N = 500. Either way the model is a function of the data alone, so a
+        rebuilt optimiser agrees with a live one (a rebuilt one pays for its anchor fit once).
+        """
         if self.n_observed < 2:
             raise SettingsError("the GP needs at least 2 observations")
-        if self._model is None or self._model_n != self.n_observed:
-            tx, ty, tyvar = self._train_tensors()
-            with _TORCH_RNG_LOCK, _torch_threads(), torch.random.fork_rng():
-                torch.manual_seed(call_seed(self.seed, self.n_observed, 0, salt=1))
-                self._model = fit_gp(
-                    build_gp(tx, ty, tyvar, self.settings.model_preset),
-                    self.settings.fit_maxiter,
-                )
-            self._model_n = self.n_observed
+        n = self.n_observed
+        if self._model is not None and self._model_n == n:
+            return self._model
+        s = self.settings
+        if s.fit_mode == "full":
+            self._model = self._fit(n)
+        else:
+            a = anchor_size(n, s.refit_every, s.refit_fraction)
+            if a == n:
+                self._model = self._fit(n)
+                self._anchor = (n, _raw_hyperparameters(self._model))
+            else:
+                if self._anchor is None or self._anchor[0] != a:
+                    self._anchor = (a, _raw_hyperparameters(self._fit(a)))
+                self._model = self._fit(n, start=self._anchor[1])
+        self._model_n = n
+        assert self._model is not None
         return self._model
 
     def predict(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -565,7 +626,7 @@ class BayesOpt(Optimizer):
         seed = call_seed(self.seed, self.n_observed, len(pending))
         model = self.model()
         pend = torch.as_tensor(self._features(pending), dtype=DTYPE) if len(pending) else None
-        with _TORCH_RNG_LOCK, _torch_threads(), torch.random.fork_rng():
+        with _TORCH_RNG_LOCK, torch.random.fork_rng():
             torch.manual_seed(seed)
             acq = self._acquisition(model, pend, q, seed)
             if self._use_levels:

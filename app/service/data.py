@@ -13,6 +13,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.db.models import Measurement, Trial
+from app.optim import OptimError, Surrogate
 from app.service import lifecycle as lc
 from app.service.auth import Actor
 from app.service.errors import InvalidInput
@@ -31,6 +32,7 @@ from app.service.trials import (
     _next_index,
     list_trials,
     optimizer_inputs,
+    rebuild_optimizer,
 )
 
 
@@ -147,9 +149,6 @@ def import_observations(
 
 def model_insight(session: Session, experiment_id: int, *, n_points: int = 41) -> ModelRead:
     """Lengthscales, the incumbent and 1-D posterior slices through it (one per θ dim)."""
-    from app.optim import OptimError
-    from app.service.trials import build_optimizer
-
     exp = get_experiment(session, experiment_id)
     inputs = optimizer_inputs(session, exp)
     obs = inputs.observations
@@ -178,8 +177,8 @@ def model_insight(session: Session, experiment_id: int, *, n_points: int = 41) -
     head = dict(
         base, incumbent_theta=inc, incumbent_objective=best.objective, incumbent_trial_id=best.id
     )
-    opt = build_optimizer(inputs)
-    if not hasattr(opt, "predict"):
+    opt = rebuild_optimizer(inputs)
+    if not isinstance(opt, Surrogate):
         return ModelRead(
             **head, lengthscales=None, slices=[], message=f"{exp.method} has no surrogate model"
         )

@@ -12,6 +12,7 @@ from sqlalchemy.orm import Session
 from app.db.base import utcnow
 from app.db.models import AuditLog, Experiment, Trial
 from app.db.prepared import Prepared
+from app.optim.methods import METHODS, OptimizerSpec
 from app.policy import Policy, PolicyError, PressureLimits
 from app.service.audit import record
 from app.service.auth import Actor
@@ -69,26 +70,24 @@ def touch_id(session: Session, experiment_id: int, *, connection: Connection | N
     _TOUCH.execute(conn, {"experiment_id": experiment_id, "now": utcnow()})
 
 
-def optimizer_kwargs(exp: Experiment) -> dict[str, Any]:
-    """Settings passed to ``app.optim.make_optimizer`` for this experiment."""
-    from app.optim import BO_METHODS, NEEDS_LEVELS
-
-    kwargs: dict[str, Any] = {}
-    if exp.method in BO_METHODS:
-        if exp.acquisition is not None:
-            kwargs["acquisition"] = exp.acquisition
-        if exp.kappa is not None:
-            kwargs["kappa"] = exp.kappa
-        kwargs["n_initial"] = exp.n_initial
-        if exp.method in NEEDS_LEVELS:
-            kwargs.update(levels=exp.levels, horizon=exp.horizon)
-    kwargs.update(exp.optimizer_settings or {})
-    return kwargs
+def optimizer_spec(exp: Experiment) -> OptimizerSpec:
+    """What ``app.optim.build_optimizer`` builds this experiment's optimiser from."""
+    return OptimizerSpec(
+        exp.method,
+        levels=exp.levels,
+        horizon=exp.horizon,
+        with_release=exp.with_release,
+        seed=exp.seed,
+        settings=dict(exp.optimizer_settings or {}),
+        n_initial=exp.n_initial,
+        acquisition=exp.acquisition,
+        kappa=exp.kappa,
+    )
 
 
 def create_experiment(session: Session, spec: ExperimentCreate, *, actor: Actor) -> Experiment:
     """Validate and store a new experiment (committed)."""
-    from app.optim import METHODS, OptimError, make_optimizer
+    from app.optim import OptimError, build_optimizer
 
     with_release = spec.with_release if spec.with_release is not None else spec.task == "throw"
     if spec.target == "hardware" and spec.limits is None:
@@ -142,7 +141,7 @@ def create_experiment(session: Session, spec: ExperimentCreate, *, actor: Actor)
         created_by=actor.username,
     )
     try:  # refuse settings the optimiser would refuse later, now, with its message
-        make_optimizer(exp.method, policy.dim, seed=exp.seed, **optimizer_kwargs(exp))
+        build_optimizer(optimizer_spec(exp))
     except (OptimError, ValueError, TypeError) as exc:
         raise InvalidInput(f"optimizer settings: {exc}") from None
     _check_preset(spec.sim_preset)

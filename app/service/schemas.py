@@ -12,6 +12,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from app.db.models import AuditLog, Experiment, Trial
+from app.optim.methods import DEFAULT_METHOD
 from app.policy import schedule_hash
 
 TaskName = Literal["throw", "hammer", "tip_speed"]
@@ -47,8 +48,7 @@ class ExperimentCreate(_In):
     horizon: int = Field(10, ge=1, le=100, description="H, control steps over 5 s")
     with_release: bool | None = Field(None, description="release-step parameter (throw)")
     limits: LimitsIn | None = Field(None, description="required for hardware")
-    # app.optim.DEFAULT_METHOD (not imported: it would load torch with the schemas)
-    method: str = Field("bo-lei-default", description="one of app.optim.METHODS")
+    method: str = Field(DEFAULT_METHOD, description="one of app.optim.METHODS")
     acquisition: Acquisition | None = Field(None, description="None: the method's default")
     kappa: float | None = Field(None, ge=0, le=1000, description="UCB κ (μ + √κ σ)")
     n_initial: int | None = Field(None, ge=2, le=10_000, description="random trials; D + 1")

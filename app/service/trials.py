@@ -14,6 +14,14 @@ from sqlalchemy.orm import Session
 from app.db.base import utcnow
 from app.db.models import AuditLog, Confirmation, Experiment, Lease, Trial
 from app.db.session import Database
+from app.optim import (
+    Observation,
+    OptimError,
+    Optimizer,
+    OptimizerSpec,
+    Surrogate,
+    build_optimizer,
+)
 from app.policy import Policy, PolicyError, PressureLimitError, schedule_hash
 from app.service import lifecycle as lc
 from app.service.audit import record
@@ -25,7 +33,7 @@ from app.service.errors import (
     NotFound,
     SafetyViolation,
 )
-from app.service.experiments import get_experiment, optimizer_kwargs, policy_of, touch
+from app.service.experiments import get_experiment, optimizer_spec, policy_of, touch
 from app.service.schemas import ResolveIn, TrialDetail, TrialRead
 
 
@@ -184,20 +192,20 @@ def _new_trial(
 class OptimizerInputs:
     """What the optimiser is rebuilt from: a snapshot of the experiment's trials."""
 
-    method: str
-    dim: int
-    seed: int
-    kwargs: dict[str, Any]
-    observations: list[Any]  # app.optim.Observation, in trial index order
+    spec: OptimizerSpec
+    observations: list[Observation]  # in trial index order
     pending: np.ndarray | None  # (k, dim)
     observed_ids: tuple[int, ...]  # trials behind ``observations``
     pending_ids: frozenset[int]  # trials behind ``pending``
 
+    @property
+    def dim(self) -> int:
+        """D, the length of θ."""
+        return self.spec.dim
+
 
 def optimizer_inputs(session: Session, exp: Experiment) -> OptimizerInputs:
     """Completed trials with an objective (executed θ when reported) and pending θ."""
-    from app.optim import Observation
-
     trials = list(
         session.scalars(select(Trial).where(Trial.experiment_id == exp.id).order_by(Trial.index))
     )
@@ -221,24 +229,19 @@ def optimizer_inputs(session: Session, exp: Experiment) -> OptimizerInputs:
             # unknown.
             pending.append(t.theta)
             pending_ids.add(t.id)
-    dim = exp.horizon + int(exp.with_release)
+    spec = optimizer_spec(exp)
     return OptimizerInputs(
-        method=exp.method,
-        dim=dim,
-        seed=exp.seed,
-        kwargs=optimizer_kwargs(exp),
+        spec=spec,
         observations=obs,
-        pending=np.asarray(pending, dtype=np.float64).reshape(-1, dim) if pending else None,
+        pending=np.asarray(pending, dtype=np.float64).reshape(-1, spec.dim) if pending else None,
         observed_ids=tuple(observed_ids),
         pending_ids=frozenset(pending_ids),
     )
 
 
-def build_optimizer(inputs: OptimizerInputs) -> Any:
-    """make_optimizer + observe_many: the optimiser exactly as the database describes it."""
-    from app.optim import make_optimizer
-
-    opt = make_optimizer(inputs.method, inputs.dim, seed=inputs.seed, **inputs.kwargs)
+def rebuild_optimizer(inputs: OptimizerInputs) -> Optimizer:
+    """build_optimizer + observe_many: the optimiser exactly as the database describes it."""
+    opt = build_optimizer(inputs.spec)
     if inputs.observations:
         opt.observe_many(inputs.observations)
     return opt
@@ -249,13 +252,11 @@ def ask(
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """(n, D) suggested θ, and the model's predicted mean/std there (None before a GP).
 
-    ``timings`` (if given) accumulates ``optimizer_s``: the seconds spent in make_optimizer +
+    ``timings`` (if given) accumulates ``optimizer_s``: the seconds spent in build_optimizer +
     observe_many + suggest, i.e. what the raw optimiser costs on this data.
     """
-    from app.optim import OptimError
-
     t0 = time.perf_counter()
-    opt = build_optimizer(inputs)
+    opt = rebuild_optimizer(inputs)
     thetas = np.asarray(opt.suggest(n, pending=inputs.pending), dtype=np.float64).reshape(n, -1)
     if timings is not None:
         timings["optimizer_s"] = timings.get("optimizer_s", 0.0) + time.perf_counter() - t0
@@ -264,8 +265,8 @@ def ask(
     # just fitted for the suggestion is reused and the prediction costs next to nothing.
     n_obs = len(inputs.observations)
     n_pending = 0 if inputs.pending is None else len(inputs.pending)
-    initial_only = n_obs < 2 or n_obs + n_pending + n <= getattr(opt, "n_initial", 0)
-    if hasattr(opt, "predict") and not initial_only:
+    initial_only = n_obs < 2 or n_obs + n_pending + n <= opt.n_initial
+    if isinstance(opt, Surrogate) and not initial_only:
         try:
             mean, std = opt.predict(thetas)
         except (OptimError, ValueError, RuntimeError):

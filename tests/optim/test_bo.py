@@ -310,3 +310,87 @@ def test_handful_bo_suggests_unseen_grid_points_and_rebuilds_identically():
     x2 = opt.suggest(1, pending=x)
     assert tuple(space.to_features(x2)[0]) != tuple(space.to_features(x)[0])
     assert opt.lengthscales().shape == (11,)
+
+
+def test_anchor_sizes_step_by_every_then_by_a_fraction_of_n():
+    from app.optim.bo import anchor_size
+
+    anchors = sorted({anchor_size(n, 10, 0.1) for n in range(2, 600)})
+    assert anchors[:4] == [2, 12, 22, 32]
+    steps = np.diff(anchors)
+    assert (steps >= 10).all() and (np.diff(steps) >= 0).all()
+    assert anchor_size(500, 10, 0.1) == 489  # ... 403, 444, 489, 538: one full fit in ~50
+    assert [anchor_size(n, 1, 0.0) for n in (2, 3, 17)] == [2, 3, 17]  # every trial: "full"
+
+
+def _mll(model) -> float:
+    from gpytorch.mlls import ExactMarginalLogLikelihood
+
+    mll = ExactMarginalLogLikelihood(model.likelihood, model)
+    model.train()
+    with torch.no_grad():
+        out = mll(model(*model.train_inputs), model.train_targets).item()
+    model.eval()
+    return out
+
+
+def test_warm_fits_reach_the_full_fits_likelihood_and_rebuild_the_same(monkeypatch):
+    """fit_mode="warm" starts each fit from the last anchor's hyperparameters: its marginal
+    likelihood is the from-scratch fit's (to 1 %), and it is a function of the data alone."""
+    import app.optim.bo as bo
+
+    starts: list[tuple[int, np.ndarray]] = []  # (N, raw lengthscales) each fit started from
+    real_fit = bo.fit_gp
+
+    def recording_fit(model, maxiter=None):
+        ls = model.covar_module.base_kernel.raw_lengthscale.detach().numpy().copy()
+        starts.append((model.train_targets.shape[-1], ls))
+        return real_fit(model, maxiter)
+
+    monkeypatch.setattr(bo, "fit_gp", recording_fit)
+    dim, n = 5, 47  # anchors 2, 12, 22, 32, 42: the model at 47 is a warm fit
+    x = np.random.default_rng(3).random((n, dim))
+    y = [bumpy(v) for v in x]
+    live_warm = make_optimizer("bo-lei", dim, seed=0, fit_mode="warm")
+    for i in range(n):  # observe one by one, asking for the model now and then (as a sweep)
+        live_warm.observe(x[i], y[i])
+        if i >= 40:
+            live_warm.model()
+    assert live_warm._anchor is not None and live_warm._anchor[0] == 42
+    fitted_at_42 = live_warm._anchor[1]["covar_module.base_kernel.raw_lengthscale"].numpy()
+    assert [k for k, _ in starts] == [32, 41, 42, 43, 44, 45, 46, 47]  # 41 needs 32's anchor
+    np.testing.assert_array_equal(starts[-1][1], fitted_at_42)  # 47 started from 42's fit
+    assert not np.allclose(starts[2][1], fitted_at_42)  # 42 itself: from the priors' defaults
+    n_fits = len(starts)
+
+    full = make_optimizer("bo-lei", dim, seed=0)
+    rebuilt = make_optimizer("bo-lei", dim, seed=0, fit_mode="warm")
+    for opt in (full, rebuilt):
+        opt.observe(x, y)
+    rebuilt.model()
+    assert [k for k, _ in starts[n_fits:]] == [42, 47]  # a rebuild pays for its anchor once
+    m_full, m_warm = _mll(full.model()), _mll(live_warm.model())
+    assert m_warm >= m_full - 0.01 * abs(m_full), (m_warm, m_full)
+    probe = np.random.default_rng(4).random((20, dim))
+    mean_l, std_l = live_warm.predict(probe)
+    mean_r, std_r = rebuilt.predict(probe)
+    np.testing.assert_allclose(mean_l, mean_r, atol=1e-9)
+    np.testing.assert_allclose(std_l, std_r, atol=1e-9)
+    mean_f, _ = full.predict(probe)
+    assert np.corrcoef(mean_f, mean_l)[0, 1] > 0.99
+
+
+@pytest.mark.parametrize(
+    "settings",
+    [
+        {"fit_mode": "quick"},
+        {"refit_every": 0},
+        {"refit_every": 2.5},
+        {"refit_fraction": -1},
+        {"warm_maxiter": 0},
+    ],
+)
+def test_bad_fit_settings_name_the_setting(settings):
+    name = next(iter(settings))
+    with pytest.raises(SettingsError, match=name):
+        make_optimizer("bo-lei", 4, seed=0, **settings)

@@ -1,0 +1,116 @@
+"""What a sweep runs: one ``RunSpec`` per (method, task, P, seed), and the checks on a sweep's
+arguments."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from app.optim import METHODS, OptimizerSpec, SettingsError
+
+TASKS = ("throw", "hammer", "tip_speed")
+HORIZON = 10  # H of the paper's policy: every sweep run uses it
+# Rough cost per trial, cheapest first: a sweep runs larger P first, cheap methods first within
+# a P, so an interrupted sweep still leaves complete rows for them.
+COST_RANK = {
+    "random": 0, "cem": 0, "cmaes": 0, "optuna-tpe": 1, "bo-lei": 2, "bo-levels": 3,
+    "optuna-gp": 4, "bo-ucb": 5, "bo-lei-default": 6, "bo-turbo": 6, "bo-lei-distinct": 6,
+}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One optimisation run: ``budget`` trials of ``method`` on ``task`` with P = ``levels``."""
+
+    method: str
+    task: str
+    levels: int
+    seed: int
+    budget: int
+    preset: str = "reference"
+    settings: dict[str, Any] = field(default_factory=dict, hash=False, compare=False)
+    label: str | None = None
+
+    @property
+    def name(self) -> str:
+        """The method's name in outputs: ``label`` (a variant with its own settings) or method."""
+        return self.label or self.method
+
+    @property
+    def key(self) -> str:
+        """File-name stem of this run's cache (the budget is not part of it: longer runs reuse)."""
+        return f"{self.task}_P{self.levels}_{self.name}_s{self.seed}_{self.preset}"
+
+    @property
+    def with_release(self) -> bool:
+        """Throwing has the release step as an extra policy parameter."""
+        return self.task == "throw"
+
+    def optimizer_spec(self) -> OptimizerSpec:
+        """The optimiser this run uses (built as the service builds an experiment's)."""
+        return OptimizerSpec(
+            self.method,
+            levels=self.levels,
+            horizon=HORIZON,
+            with_release=self.with_release,
+            seed=self.seed,
+            settings=self.settings,
+        )
+
+    def cost_rank(self) -> tuple[int, int]:
+        """Sort key: larger P first, then cheaper methods first."""
+        return (-self.levels, COST_RANK.get(self.method, 9))
+
+
+def validate(
+    *,
+    methods: Sequence[str],
+    tasks: Sequence[str],
+    levels: Sequence[int],
+    budgets: Sequence[int],
+    seeds: int,
+) -> None:
+    """Raise SettingsError (one line, naming the culprit) for arguments no sweep can run."""
+    for m in methods:
+        if m not in METHODS:
+            raise SettingsError(f"unknown method {m!r}; choose from {', '.join(METHODS)}")
+    for t in tasks:
+        if t not in TASKS:
+            raise SettingsError(f"unknown task {t!r}; choose from {', '.join(TASKS)}")
+    for p in levels:
+        if p < 2:
+            raise SettingsError(f"levels (P) must be ≥ 2, got {p}")
+    for b in budgets:
+        if b < 1:
+            raise SettingsError(f"budget must be ≥ 1 trial, got {b}")
+    if seeds < 1:
+        raise SettingsError(f"seeds must be ≥ 1, got {seeds}")
+    if not (methods and tasks and levels and budgets):
+        raise SettingsError("need at least one method, task, level count and budget")
+
+
+def make_specs(
+    *,
+    methods: Sequence[str],
+    tasks: Sequence[str],
+    levels: Sequence[int],
+    budgets: Sequence[int],
+    seeds: int,
+    preset: str,
+) -> list[RunSpec]:
+    """All runs of a sweep, each as long as the largest budget."""
+    validate(methods=methods, tasks=tasks, levels=levels, budgets=budgets, seeds=seeds)
+    n = max(budgets)
+    return [
+        RunSpec(m, t, p, s, n, preset)
+        for t in tasks
+        for p in levels
+        for m in methods
+        for s in range(seeds)
+    ]
+
+
+def policy_dim(task: str) -> int:
+    """D of the paper's policy for ``task`` (H = 10, plus the release step when throwing)."""
+    return HORIZON + int(task == "throw")
