@@ -95,24 +95,31 @@ _ROLLOUT_SLOTS = threading.BoundedSemaphore(2)
 
 
 def _simulate_qpos(
-    task: str, preset: str, schedule: Any, release_step: int | None
+    task: str, preset: str, schedule: Any, release_step: int | None, command_hold: str = "zero"
 ) -> tuple[np.ndarray, np.ndarray]:
     """A sim rollout of the schedule with qpos recorded: (time_s (T,), qpos (T, nq)).
 
-    The simulator is deterministic, so results are kept (newest 16) by task, preset and the
-    schedule's hash.
+    The simulator is deterministic, so results are kept (newest 16) by task, preset, command
+    hold and the schedule's hash.
     """
     from app.policy import schedule_hash
     from app.sim import rollout
 
     sched = np.asarray(schedule, dtype=np.float64)
-    key = f"{task}/{preset}/{schedule_hash(sched, release_step)}"
+    key = f"{task}/{preset}/{command_hold}/{schedule_hash(sched, release_step)}"
     with _ROLLOUT_LOCK:
         if key in _ROLLOUTS:
             _ROLLOUTS.move_to_end(key)
             return _ROLLOUTS[key]
     with _ROLLOUT_SLOTS:
-        result = rollout(task, sched, release_step=release_step, preset=preset, record_qpos=True)
+        result = rollout(
+            task,
+            sched,
+            release_step=release_step,
+            preset=preset,
+            record_qpos=True,
+            command_hold=command_hold,
+        )
     out = (np.asarray(result.trajectory.time_s), np.asarray(result.trajectory.qpos))
     with _ROLLOUT_LOCK:
         _ROLLOUTS[key] = out
@@ -144,7 +151,10 @@ async def _trial_replay(
         schedule = executed if executed is not None else trial["pressure_schedule_pa"]
         release = trial.get("executed_release_step") if executed is not None else None
         release = release if release is not None else trial.get("release_step")
-        time_s, qpos = await asyncio.to_thread(_simulate_qpos, task, preset, schedule, release)
+        hold = experiment.get("command_hold") or "zero"
+        time_s, qpos = await asyncio.to_thread(
+            _simulate_qpos, task, preset, schedule, release, hold
+        )
         how = "simulated from its executed schedule" if executed else "simulated from its plan"
     label = f"trial {trial.get('index', trial_id)} ({role}, {how})"
     return Replay(task, time_s, qpos, label, preset), trial
@@ -277,6 +287,7 @@ def mount_dashboard(app: FastAPI, settings: Any) -> None:
                 preset,
                 trial["pressure_schedule_pa"],
                 trial.get("release_step"),
+                experiment.get("command_hold") or "zero",
             )
         label = f"trial {trial.get('index', body.trial_id)} (candidate, sim preview)"
         return Replay(task, recorded[0], recorded[1], label, preset), trial

@@ -37,11 +37,28 @@ from app.bench.report import (
     write_results_csv,
 )
 from app.bench.runner import objective_fn, run_one
-from app.bench.specs import HORIZON, TASKS, RunSpec, make_specs, policy_dim, validate
+from app.bench.specs import (
+    COMMAND_HOLDS,
+    HORIZON,
+    OBJECTIVE_RULES,
+    PAPER_COMMAND_HOLD,
+    PAPER_OBJECTIVE_RULE,
+    PAPER_PRESET,
+    TASKS,
+    RunSpec,
+    make_specs,
+    policy_dim,
+    validate,
+)
 from app.bench.stats import best_at, head_to_head, result_rows
 
 __all__ = [
+    "COMMAND_HOLDS",
     "HORIZON",
+    "OBJECTIVE_RULES",
+    "PAPER_COMMAND_HOLD",
+    "PAPER_OBJECTIVE_RULE",
+    "PAPER_PRESET",
     "RESULT_COLUMNS",
     "RUN_COLUMNS",
     "TASKS",

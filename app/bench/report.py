@@ -15,7 +15,10 @@ from app.bench.specs import TASKS, RunSpec
 from app.bench.stats import best_at, head_to_head, result_rows
 from app.optim import DEFAULT_METHOD
 
-RESULT_COLUMNS = ("method", "task", "levels", "seed", "trial", "objective", "best_so_far", "wall_s")
+RESULT_COLUMNS = (
+    "method", "task", "levels", "seed", "trial", "objective", "best_so_far", "wall_s",
+    "preset", "command_hold", "objective_rule",
+)  # fmt: skip
 
 
 def write_results_csv(path: Path, rows: Iterable[dict[str, Any]]) -> None:
@@ -47,6 +50,10 @@ def read_results_csv(path: Path) -> list[dict[str, Any]]:
                 "objective": float(r["objective"]),
                 "best_so_far": float(r["best_so_far"]),
                 "wall_s": float(r["wall_s"]),
+                # older files: the simulator settings of their time
+                "preset": r.get("preset") or "",
+                "command_hold": r.get("command_hold") or "zero",
+                "objective_rule": r.get("objective_rule") or "paper",
             }
             for r in csv.DictReader(fh)
         ]
@@ -181,12 +188,13 @@ def write_outputs(
     out.mkdir(parents=True, exist_ok=True)
     rows = [r for s in specs for r in result_rows(s, runs[s])]
     write_results_csv(out / "results.csv", rows)
-    preset = specs[0].preset if specs else ""
+    sims = sorted({(s.preset, s.command_hold, s.objective_rule) for s in specs})
+    where = "; ".join(f"sim preset {p}, command hold {h}, objective {o}" for p, h, o in sims)
     (out / "summary.md").write_text(
         summary_markdown(
             rows,
             budgets,
-            title=f"Optimiser sweep (sim preset {preset})",
+            title=f"Optimiser sweep ({where})",
             reference=DEFAULT_METHOD,
         )
         + "\n"

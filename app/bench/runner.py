@@ -26,8 +26,15 @@ from app.bench.specs import RunSpec
 from app.optim import Observation, build_optimizer
 
 
-def objective_fn(task: str, levels: int, preset: str) -> Callable[[np.ndarray], float]:
-    """θ (D,) → the task objective of one simulated episode (policy decode → rollout)."""
+def objective_fn(
+    task: str,
+    levels: int,
+    preset: str,
+    command_hold: str = "zero",
+    objective_rule: str = "paper",
+) -> Callable[[np.ndarray], float]:
+    """θ (D,) → the task objective of one simulated episode (policy decode → rollout), with
+    the commands held or ramped and scored by the rule given (``app.sim.rollout``)."""
     from app.policy import Policy
     from app.sim import SimulationDiverged, rollout
 
@@ -36,7 +43,14 @@ def objective_fn(task: str, levels: int, preset: str) -> Callable[[np.ndarray], 
     def f(theta: np.ndarray) -> float:
         d = policy.decode(np.clip(theta, 0.0, 1.0))
         try:
-            res = rollout(task, d.pressure_schedule_pa, release_step=d.release_step, preset=preset)
+            res = rollout(
+                task,
+                d.pressure_schedule_pa,
+                release_step=d.release_step,
+                preset=preset,
+                command_hold=command_hold,
+                objective_rule=objective_rule,
+            )
         except SimulationDiverged:
             return math.nan
         return float(res.objective)
@@ -63,7 +77,9 @@ def run_one(
         done = cached_rows(spec, out)
         if done is not None:
             return done
-    f = objective or objective_fn(spec.task, spec.levels, spec.preset)
+    f = objective or objective_fn(
+        spec.task, spec.levels, spec.preset, spec.command_hold, spec.objective_rule
+    )
     opt = build_optimizer(spec.optimizer_spec())
     rows: list[dict[str, Any]] = []
     part = None

@@ -27,6 +27,9 @@ def result_rows(spec: RunSpec, rows: Iterable[dict[str, Any]]) -> list[dict[str,
                 "objective": float(r["objective"]),
                 "best_so_far": best,
                 "wall_s": float(r["wall_s"]),
+                "preset": spec.preset,
+                "command_hold": spec.command_hold,
+                "objective_rule": spec.objective_rule,
             }
         )
     return out

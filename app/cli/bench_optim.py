@@ -37,7 +37,17 @@ def optim(
     ),
     seeds: int = typer.Option(3, "--seeds", help="number of seeds (0 .. N-1)"),
     methods: list[str] = typer.Option(None, "--methods", help="methods (default: all)"),
-    preset: str = typer.Option("reference", "--preset", help="simulator preset: reference, fast"),
+    preset: str = typer.Option(
+        None, "--preset", help="simulator preset: reference, fast (default: the paper-matching)"
+    ),
+    command_hold: str = typer.Option(
+        None,
+        "--command-hold",
+        help="zero (each row held) or linear (ramped over each step); default: paper-matching",
+    ),
+    objective: str = typer.Option(
+        None, "--objective", help="scoring rule: paper or published; default: paper-matching"
+    ),
     out: Path = typer.Option(Path("bench_out/optim"), "--out", help="output (and cache) folder"),
     backend: str = typer.Option("local", "--backend", help="local (process pool) or ray"),
     address: str = typer.Option(None, "--address", help="Ray cluster address (with --backend ray)"),
@@ -51,9 +61,22 @@ def optim(
     ),
 ) -> None:
     """Run BO, CEM, random search, Optuna and CMA-ES on the simulated tasks; write
-    DIR/results.csv, DIR/summary.md and DIR/curves.png. Finished runs are cached and skipped."""
+    DIR/results.csv, DIR/summary.md and DIR/curves.png. Finished runs are cached and skipped.
+
+    By default the simulator reproduces the paper's tables: preset, command hold and scoring
+    rule of ``app.bench.PAPER_PRESET`` / ``PAPER_COMMAND_HOLD`` / ``PAPER_OBJECTIVE_RULE``."""
     from app import bench
     from app.optim import METHODS, SettingsError
+
+    preset = preset or bench.PAPER_PRESET
+    command_hold = command_hold or bench.PAPER_COMMAND_HOLD
+    objective = objective or bench.PAPER_OBJECTIVE_RULE
+    if command_hold not in bench.COMMAND_HOLDS:
+        _fail(
+            f"unknown --command-hold {command_hold!r}; choose from {', '.join(bench.COMMAND_HOLDS)}"
+        )
+    if objective not in bench.OBJECTIVE_RULES:
+        _fail(f"unknown --objective {objective!r}; choose from {', '.join(bench.OBJECTIVE_RULES)}")
 
     tasks = _split(task, ["throw"])
     ps = _ints("levels", _split(levels, ["2"]))
@@ -73,7 +96,14 @@ def optim(
         _fail(f"unknown --preset {preset!r}; choose from {', '.join(PRESETS)}")
     try:
         specs = bench.make_specs(
-            methods=chosen, tasks=tasks, levels=ps, budgets=budgets, seeds=seeds, preset=preset
+            methods=chosen,
+            tasks=tasks,
+            levels=ps,
+            budgets=budgets,
+            seeds=seeds,
+            preset=preset,
+            command_hold=command_hold,
+            objective_rule=objective,
         )
     except SettingsError as exc:
         _fail(str(exc))

@@ -72,7 +72,8 @@ CSV_FIELDS = (
 
 
 def export_csv(session: Session, experiment_id: int) -> str:
-    """One row per trial: index, status, objective, SEM, θ (planned and executed), times."""
+    """One row per trial: index, status, objective, SEM, θ (planned and executed), times, and
+    the experiment's command hold (how the schedule's rows were applied)."""
     exp = get_experiment(session, experiment_id)
     dim = exp.horizon + int(exp.with_release)
     trials = list_trials(session, experiment_id)
@@ -83,13 +84,15 @@ def export_csv(session: Session, experiment_id: int) -> str:
             *CSV_FIELDS,
             *(f"theta_{i}" for i in range(dim)),
             *(f"executed_theta_{i}" for i in range(dim)),
+            "command_hold",
         ]
     )
     for t in trials:
         d = t.model_dump(mode="json")
         row = ["" if d[f] is None else d[f] for f in CSV_FIELDS]
         ex = t.executed_theta or [""] * dim
-        w.writerow([*row, *(repr(v) for v in t.theta), *(v if v == "" else repr(v) for v in ex)])
+        theta = (repr(v) for v in t.theta)
+        w.writerow([*row, *theta, *(v if v == "" else repr(v) for v in ex), exp.command_hold])
     return buf.getvalue()
 
 

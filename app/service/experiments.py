@@ -120,6 +120,7 @@ def create_experiment(session: Session, spec: ExperimentCreate, *, actor: Actor)
         task=spec.task,
         target=spec.target,
         sim_preset=spec.sim_preset,
+        command_hold=spec.command_hold,
         objective_unit=spec.objective_unit or DEFAULT_UNIT[spec.task],
         levels=spec.levels,
         horizon=spec.horizon,

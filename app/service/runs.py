@@ -57,14 +57,16 @@ def run_trial(db: Database, trial_id: int, *, actor: Actor, artifacts_dir: Path)
             )
         sched = check_schedule_safe(exp, trial.pressure_schedule_pa, trial.release_step)
         release = trial.release_step
-        task, preset = exp.task, exp.sim_preset
+        task, preset, hold = exp.task, exp.sim_preset, exp.command_hold
         trial.attempts += 1
         lc.transition(s, trial, lc.RUNNING, actor=actor.username, action="trial.run")
         touch(exp)
     error = None
     result = None
     try:
-        result = rollout(task, sched, release_step=release, preset=preset, record_qpos=True)
+        result = rollout(
+            task, sched, release_step=release, preset=preset, record_qpos=True, command_hold=hold
+        )
     except SimulationDiverged as exc:
         error = f"simulation diverged: {exc}"
     with db.write() as s:
@@ -126,6 +128,7 @@ class PreviewJob:
     schedule: np.ndarray
     release_step: int | None
     schedule_hash: str
+    command_hold: str = "zero"
     status: str = "queued"
     progress: float = 0.0
     error: str | None = None
@@ -166,6 +169,7 @@ class PreviewRunner:
                 trial_id=trial.id,
                 task=exp.task,
                 preset=exp.sim_preset,
+                command_hold=exp.command_hold,
                 schedule=sched,
                 release_step=trial.release_step,
                 schedule_hash=schedule_hash(sched, trial.release_step),
@@ -188,6 +192,7 @@ class PreviewRunner:
                 release_step=job.release_step,
                 preset=job.preset,
                 record_qpos=True,
+                command_hold=job.command_hold,
             )
             job.progress = 0.9
             raw = _trajectory_npz_bytes(res)

@@ -17,6 +17,7 @@ from app.policy import schedule_hash
 
 TaskName = Literal["throw", "hammer", "tip_speed"]
 Target = Literal["sim", "hardware"]
+CommandHold = Literal["zero", "linear"]  # app.sim.COMMAND_HOLDS (not imported: it loads MuJoCo)
 ExperimentStatus = Literal["active", "paused", "completed", "archived"]
 Acquisition = Literal["logei", "ucb", "qlognei"]
 Unit = Literal["m", "m/s", "N", "score"]
@@ -56,6 +57,11 @@ class ExperimentCreate(_In):
     budget: int | None = Field(None, ge=1, le=1_000_000, description="max trials")
     notes: str = Field("", max_length=20_000)
     sim_preset: str = Field("reference", max_length=32)
+    command_hold: CommandHold = Field(
+        "zero",
+        description="zero: each row held for its step; linear: ramped from the previous row "
+        "(from zero pressures at the start) over the step",
+    )
     objective_unit: Unit | None = Field(
         None, description="unit of measurements; default m/s for tip_speed, else score"
     )
@@ -83,6 +89,7 @@ class ExperimentRead(BaseModel):
     task: str
     target: str
     sim_preset: str
+    command_hold: str
     objective_unit: str
     levels: int
     horizon: int
@@ -130,6 +137,7 @@ class ExperimentRead(BaseModel):
             task=exp.task,
             target=exp.target,
             sim_preset=exp.sim_preset,
+            command_hold=exp.command_hold,
             objective_unit=exp.objective_unit,
             levels=exp.levels,
             horizon=exp.horizon,

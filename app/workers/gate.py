@@ -126,6 +126,10 @@ def gate_hardware_trial(
             f"(confirmed {str(confirmed_hash)[:12]}…, about to send {expected[:12]}…)"
         )
 
+    hold = experiment.get("command_hold") or "zero"
+    if hold not in ("zero", "linear"):
+        raise SafetyRefusal(f"unknown command hold {hold!r}; this worker knows zero and linear")
+
     return DriverCommand(
         trial_id=int(trial_id if trial_id is not None else trial.get("id", -1)),
         task=str(task),
@@ -133,4 +137,5 @@ def gate_hardware_trial(
         release_step=release,
         step_s=policy.step_s,
         nominal_pa=np.asarray(policy.limits.nominal_pa, dtype=np.float64),
+        command_hold=str(hold),
     )

@@ -47,9 +47,14 @@ def test_cli_sweep_writes_results_summary_and_curves_and_skips_cached_runs(tmp_p
         best = np.array([float(r["best_so_far"]) for r in run_rows])
         np.testing.assert_allclose(best, np.maximum.accumulate(obj), rtol=1e-5)
         assert all(float(r["wall_s"]) > 0 for r in run_rows)
+        # by default the paper-matching simulator settings, named in every row
+        assert {(r["preset"], r["command_hold"], r["objective_rule"]) for r in run_rows} == {
+            ("fast", "linear", "published")
+        }
 
     summary = (out / "summary.md").read_text()
     assert "## hammer: best objective so far, mean ± std over 2 seeds" in summary
+    assert "(sim preset fast, command hold linear, objective published)" in summary
     assert "| Method | Trials | P=2 |" in summary
     for method in ("random", "cem"):
         for budget in (2, 4):
@@ -69,6 +74,22 @@ def test_cli_sweep_writes_results_summary_and_curves_and_skips_cached_runs(tmp_p
     assert {p.name: p.stat().st_mtime_ns for p in (out / "runs").iterdir()} == before
     with open(out / "results.csv", newline="") as fh:
         assert list(csv.DictReader(fh)) == rows
+
+
+def test_the_hold_and_rule_reach_the_episodes_and_keep_separate_caches(tmp_path):
+    held = bench.RunSpec("random", "throw", 2, 0, 3, "fast")
+    ramped = bench.RunSpec(
+        "random", "throw", 2, 0, 3, "fast", command_hold="linear", objective_rule="published"
+    )
+    assert held.key != ramped.key
+    rows_held, rows_ramped = bench.run_one(held, tmp_path), bench.run_one(ramped, tmp_path)
+    assert [r["theta"] for r in rows_held] == [r["theta"] for r in rows_ramped]  # same θ
+    f = bench.objective_fn("throw", 2, "fast", "linear", "published")
+    assert [r["objective"] for r in rows_ramped] == [f(np.array(r["theta"])) for r in rows_held]
+    assert [r["objective"] for r in rows_ramped] != [r["objective"] for r in rows_held]
+    cached = bench.cached_rows(ramped, tmp_path)
+    assert cached is not None
+    assert [r["objective"] for r in cached] == [r["objective"] for r in rows_ramped]
 
 
 def test_an_interrupted_or_extended_run_resumes_to_the_same_result(tmp_path):
@@ -145,6 +166,8 @@ def test_head_to_head_gives_the_difference_and_welch_p():
         (["--budget", "0"], "budget must be ≥ 1 trial, got 0"),
         (["--levels", "1"], "levels (P) must be ≥ 2, got 1"),
         (["--preset", "ultra"], "unknown --preset 'ultra'"),
+        (["--command-hold", "cubic"], "unknown --command-hold 'cubic'; choose from zero, linear"),
+        (["--objective", "best"], "unknown --objective 'best'; choose from paper, published"),
     ],
 )
 def test_bad_arguments_exit_nonzero_with_one_clear_line(tmp_path, args, message):

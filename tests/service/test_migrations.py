@@ -66,3 +66,32 @@ def test_audit_log_is_append_only_in_the_database(migrated_db):
         with pytest.raises(sqlite3.IntegrityError, match="append-only"):
             con.execute(sql)
     con.close()
+
+
+def test_command_hold_revision_gives_old_experiments_zero_and_downgrades(tmp_path):
+    url = f"sqlite:///{tmp_path / 'm.db'}"
+    upgrade(url, "0002")
+    path = url.removeprefix("sqlite:///")
+    con = sqlite3.connect(path)
+    cols = [r for r in con.execute("PRAGMA table_info(experiments)") if r[1] != "id"]
+    assert "command_hold" not in [r[1] for r in cols]
+    values = {
+        r[1]: (0 if r[2].upper() in ("INTEGER", "BOOLEAN", "FLOAT") else "{}" if r[2] == "JSON"
+               else "2026-01-01 00:00:00" if r[2] in ("DATETIME", "TIMESTAMP") else "x")
+        for r in cols if r[3]  # NOT NULL columns
+    }  # fmt: skip
+    con.execute(
+        f"INSERT INTO experiments ({', '.join(values)}) VALUES ({', '.join('?' * len(values))})",
+        list(values.values()),
+    )
+    con.commit()
+    con.close()
+    upgrade(url)
+    con = sqlite3.connect(path)
+    assert con.execute("SELECT command_hold FROM experiments").fetchall() == [("zero",)]
+    con.close()
+    downgrade(url, "0002")
+    con = sqlite3.connect(path)
+    assert "command_hold" not in [r[1] for r in con.execute("PRAGMA table_info(experiments)")]
+    assert con.execute("SELECT COUNT(*) FROM experiments").fetchone() == (1,)
+    con.close()

@@ -257,6 +257,7 @@ class StandinDriver:
                     preset=self.preset,
                     record_hz=4.0 * self.tracker_hz,
                     params=self._sim_params(stiffness),
+                    command_hold=command.command_hold,
                 )
             except SimulationDiverged as exc:
                 return Execution(

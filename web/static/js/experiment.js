@@ -10,6 +10,11 @@ let trials = [];
 let version = null;
 let nextKey = null;
 
+/** How the experiment applies each schedule row (a ramped schedule is a different motion). */
+function holdText(e) {
+  return (e && e.command_hold) === "linear" ? "commands ramped over each step (linear hold)" : "commands held each step (zero hold)";
+}
+
 function listOf(answer) {
   return Array.isArray(answer) ? answer : (answer && (answer.items || answer.trials)) || [];
 }
@@ -61,6 +66,7 @@ function renderHeader() {
   $("#exp-summary").textContent = [
     `${e.task} on ${e.target}`,
     `P = ${e.levels}, H = ${e.horizon}${e.with_release ? " + release step" : ""}`,
+    holdText(e),
     `${e.method}${e.acquisition ? ` (${e.acquisition}${e.kappa !== null && e.kappa !== undefined ? `, κ = ${e.kappa}` : ""})` : ""}, ${e.n_initial} initial, seed ${e.seed}`,
     `objective in ${e.objective_unit}`,
     limitsText(e),
@@ -108,7 +114,7 @@ function renderNext() {
       ? `GP predicts ${fmtPm(t.predicted_mean, t.predicted_std)} (mean ± std)`
       : "No GP prediction for this trial (random initial trial, or not a BO experiment).",
     el("div", { id: "next-preview-summary", class: "small" }));
-  scheduleHeatmap($("#heatmap"), t.pressure_schedule_pa, { title: "pressure schedule (kPa): 12 chambers × H steps", releaseStep: t.release_step, ...boundsPa(experiment) });
+  scheduleHeatmap($("#heatmap"), t.pressure_schedule_pa, { title: `pressure schedule (kPa): 12 chambers × H steps, ${holdText(experiment)}`, releaseStep: t.release_step, ...boundsPa(experiment) });
   const best = incumbent();
   renderTrialActions($("#trial-actions"), t, {
     experiment, incumbentId: best && best.id !== t.id ? best.id : null, onChange: (msg) => { say(msg); refresh(true); },

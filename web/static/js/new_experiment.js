@@ -52,6 +52,7 @@ function collect() {
     name: $("#f-name").value.trim(),
     task, target,
     sim_preset: $("#f-sim_preset").value,
+    command_hold: $("#f-command_hold").value,
     levels: numberField("#f-levels", "levels", errors, { integer: true }),
     horizon,
     with_release: task === "throw",
