@@ -201,6 +201,8 @@ def run_specs(
     *,
     seeds: int,
     preset: str,
+    command_hold: str,
+    objective_rule: str,
     bo_settings: dict[str, Any] | None = None,
 ) -> list[RunSpec]:
     """One run per (task, method, P, seed) of ``cells``, as long as its largest cell.
@@ -218,7 +220,19 @@ def run_specs(
     for (task, method, p), budget in longest.items():
         settings = dict(bo_settings or {}) if method.startswith("bo-") else {}
         for s in range(seeds):
-            specs.append(RunSpec(method, task, p, s, budget, preset, settings=settings))
+            specs.append(
+                RunSpec(
+                    method,
+                    task,
+                    p,
+                    s,
+                    budget,
+                    preset,
+                    settings=settings,
+                    command_hold=command_hold,
+                    objective_rule=objective_rule,
+                )
+            )
     return specs
 
 

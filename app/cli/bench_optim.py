@@ -27,6 +27,25 @@ def _fail(message: str) -> None:
     raise typer.Exit(2)
 
 
+def sim_settings(
+    preset: str | None, command_hold: str | None, objective: str | None
+) -> tuple[str, str, str]:
+    """(preset, command hold, scoring rule): each the paper-matching one unless given; one
+    clear line and exit 2 for an unknown one."""
+    from app import bench
+
+    preset = preset or bench.PAPER_PRESET
+    command_hold = command_hold or bench.PAPER_COMMAND_HOLD
+    objective = objective or bench.PAPER_OBJECTIVE_RULE
+    if command_hold not in bench.COMMAND_HOLDS:
+        _fail(
+            f"unknown --command-hold {command_hold!r}; choose from {', '.join(bench.COMMAND_HOLDS)}"
+        )
+    if objective not in bench.OBJECTIVE_RULES:
+        _fail(f"unknown --objective {objective!r}; choose from {', '.join(bench.OBJECTIVE_RULES)}")
+    return preset, command_hold, objective
+
+
 def optim(
     task: list[str] = typer.Option(
         None, "--task", help="throw, hammer, tip_speed (repeat or comma-separate; default throw)"
@@ -68,15 +87,7 @@ def optim(
     from app import bench
     from app.optim import METHODS, SettingsError
 
-    preset = preset or bench.PAPER_PRESET
-    command_hold = command_hold or bench.PAPER_COMMAND_HOLD
-    objective = objective or bench.PAPER_OBJECTIVE_RULE
-    if command_hold not in bench.COMMAND_HOLDS:
-        _fail(
-            f"unknown --command-hold {command_hold!r}; choose from {', '.join(bench.COMMAND_HOLDS)}"
-        )
-    if objective not in bench.OBJECTIVE_RULES:
-        _fail(f"unknown --objective {objective!r}; choose from {', '.join(bench.OBJECTIVE_RULES)}")
+    preset, command_hold, objective = sim_settings(preset, command_hold, objective)
 
     tasks = _split(task, ["throw"])
     ps = _ints("levels", _split(levels, ["2"]))

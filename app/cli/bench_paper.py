@@ -10,7 +10,7 @@ from pathlib import Path
 
 import typer
 
-from app.cli.bench_optim import _fail
+from app.cli.bench_optim import _fail, sim_settings
 
 
 def paper(
@@ -32,7 +32,17 @@ def paper(
         help="BO's GP fits: warm (from the last full fit's hyperparameters, a full refit every "
         "10 trials or 10 %% of N) or full (the paper: from scratch after every trial)",
     ),
-    preset: str = typer.Option("reference", "--preset", help="simulator preset"),
+    preset: str = typer.Option(
+        None, "--preset", help="simulator preset: reference, fast (default: the paper-matching)"
+    ),
+    command_hold: str = typer.Option(
+        None,
+        "--command-hold",
+        help="zero (each row held) or linear (ramped over each step); default: paper-matching",
+    ),
+    objective: str = typer.Option(
+        None, "--objective", help="scoring rule: paper or published; default: paper-matching"
+    ),
     backend: str = typer.Option("local", "--backend", help="local (process pool) or ray"),
     address: str = typer.Option(None, "--address", help="Ray cluster address (with --backend ray)"),
     workers: int = typer.Option(0, "--workers", help="parallel runs (default: all cores)"),
@@ -55,6 +65,7 @@ def paper(
     terms = [t for raw in cells or [] for t in re.split(r"[\s;&]+", raw) if t]
     if trials:
         terms.append(f"trials={trials}")
+    preset, command_hold, objective = sim_settings(preset, command_hold, objective)
     if bo_fit not in ("warm", "full"):
         _fail(f"--bo-fit must be warm or full, got {bo_fit!r}")
     if backend not in ("local", "ray"):
@@ -77,7 +88,12 @@ def paper(
         if not chosen:
             _fail(f"no cell of the paper's grid matches {' '.join(terms)}")
         specs = grid_mod.run_specs(
-            chosen, seeds=seeds, preset=preset, bo_settings={"fit_mode": bo_fit}
+            chosen,
+            seeds=seeds,
+            preset=preset,
+            command_hold=command_hold,
+            objective_rule=objective,
+            bo_settings={"fit_mode": bo_fit},
         )
     except SettingsError as exc:
         _fail(str(exc))
@@ -95,8 +111,9 @@ def paper(
     out.mkdir(parents=True, exist_ok=True)
     write_results_csv(out / "results.csv", rows)
     header = [
-        f"Simulator preset `{preset}`; BO GP fits `{bo_fit}`; {seeds} seeds asked per cell; "
-        "std over seeds with ddof 0.",
+        f"Simulator preset `{preset}`, command hold `{command_hold}`, scoring rule "
+        f"`{objective}`; BO GP fits `{bo_fit}`; {seeds} seeds asked per cell; std over seeds "
+        "with ddof 0.",
         "",
         "Command: `handful bench paper "
         + shlex.join(sys.argv[3:] if len(sys.argv) > 3 else [])

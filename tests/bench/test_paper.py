@@ -59,7 +59,8 @@ def test_bad_cells_get_one_clear_line(term, message):
 
 def test_runs_share_cells_and_bo_settings_key_their_caches():
     cells = paper.select(paper.grid(available=()), ["P=2", "task=throw", "method=bo-lei,cem"])
-    specs = paper.run_specs(cells, seeds=2, preset="fast", bo_settings={"fit_mode": "warm"})
+    sim = {"preset": "fast", "command_hold": "linear", "objective_rule": "published"}
+    specs = paper.run_specs(cells, seeds=2, **sim, bo_settings={"fit_mode": "warm"})
     budgets = {(s.method, s.seed): s.budget for s in specs}
     assert budgets == {
         ("bo-lei", 0): 500,
@@ -70,7 +71,8 @@ def test_runs_share_cells_and_bo_settings_key_their_caches():
     bo = next(s for s in specs if s.method == "bo-lei")
     cem = next(s for s in specs if s.method == "cem")
     assert bo.settings == {"fit_mode": "warm"} and cem.settings == {}
-    full = paper.run_specs(cells, seeds=1, preset="fast", bo_settings={"fit_mode": "full"})
+    assert (cem.command_hold, cem.objective_rule) == ("linear", "published")
+    full = paper.run_specs(cells, seeds=1, **sim, bo_settings={"fit_mode": "full"})
     assert next(s for s in full if s.method == "bo-lei").key != bo.key  # never mixed
     assert next(s for s in full if s.method == "cem").key == cem.key  # shared: same runs
 
@@ -113,6 +115,7 @@ def test_cli_refuses_bad_cells_with_one_line(tmp_path):
         (["--trials", "20000"], "nothing above 10K"),
         (["--cells", "method=redq"], "redq is not in this build"),
         (["--bo-fit", "fast"], "--bo-fit must be warm or full"),
+        (["--command-hold", "cubic"], "unknown --command-hold 'cubic'"),
     ):
         res = handful("bench", "paper", *args, "--out", str(tmp_path / "o"), cwd=tmp_path)
         assert res.returncode == 2, (args, res.stderr)
