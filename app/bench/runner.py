@@ -1,6 +1,7 @@
 """One run of a sweep: ``budget`` trials of suggest → decode → rollout → observe, cached trial
 by trial so an interrupted run resumes to the same result (suggestions are pure functions of
-the data)."""
+the data). The simulator runs the plan exactly, so the optimiser observes the planned θ: what
+``Policy.executed_theta`` gives, as in the service."""
 
 from __future__ import annotations
 

@@ -43,12 +43,12 @@ from botorch.sampling import SobolQMCNormalSampler
 from gpytorch.mlls import ExactMarginalLogLikelihood
 
 from app.optim.base import Optimizer, SettingsError, Surrogate, call_seed
+from app.policy import N_PAIRED, Policy, PolicyError
 
 ACQUISITIONS = ("logei", "ucb", "qlognei")
 MODEL_PRESETS = ("paper", "default")
 SPACES = ("theta", "levels")
 INITIAL_DESIGNS = ("sobol", "corners")
-N_PAIRED = 6  # paired commands per action (see app.policy)
 
 DTYPE = torch.float64
 # Torch's RNG is process-global; fork it per call under a lock so threads cannot interleave.
@@ -175,65 +175,6 @@ def trust_region_state(y: np.ndarray, n_initial: int, dim: int) -> TrustRegion:
     return TrustRegion(length, successes, failures)
 
 
-class LevelSpace:
-    """θ (D,) ↔ features (F,) = per-step paired-command levels / (P−1), plus release / (H−1).
-
-    Mirrors ``app.policy.Policy.actions_from_theta`` (C-order digits, first most significant).
-    """
-
-    def __init__(self, levels: int, horizon: int, with_release: bool) -> None:
-        self.levels = levels
-        self.horizon = horizon
-        self.with_release = with_release
-        self.n_actions = levels**N_PAIRED
-        self.n_features = horizon * N_PAIRED + int(with_release)
-
-    def to_features(self, theta: np.ndarray) -> np.ndarray:
-        """(N, D) θ → (N, F) features on the level grid in [0,1]."""
-        th = np.atleast_2d(theta)
-        a = np.minimum(np.floor(th[:, : self.horizon] * self.n_actions), self.n_actions - 1)
-        digits = np.stack(
-            np.unravel_index(a.astype(np.int64), (self.levels,) * N_PAIRED), axis=-1
-        )  # (N, H, 6)
-        feats = digits.reshape(th.shape[0], -1) / (self.levels - 1)
-        if self.with_release:
-            r = np.minimum(np.floor(th[:, self.horizon] * self.horizon), self.horizon - 1)
-            feats = np.concatenate([feats, (r / max(self.horizon - 1, 1))[:, None]], axis=1)
-        return feats
-
-    def keys(self, theta: np.ndarray) -> list[tuple[int, ...]]:
-        """(N, D) θ → one key per row: its H action indices (and release step), the schedule
-        ``Policy.decode`` gives. Equal keys ⇔ the same pressure schedule and release."""
-        th = np.atleast_2d(theta)
-        a = np.minimum(np.floor(th[:, : self.horizon] * self.n_actions), self.n_actions - 1)
-        cols = [a.astype(np.int64)]
-        if self.with_release:
-            r = np.minimum(np.floor(th[:, self.horizon] * self.horizon), self.horizon - 1)
-            cols.append(r.astype(np.int64)[:, None])
-        return [tuple(int(v) for v in row) for row in np.concatenate(cols, axis=1)]
-
-    def to_theta(self, feats: np.ndarray) -> np.ndarray:
-        """(N, F) features (snapped to the grid) → (N, D) θ at the centres of their bins."""
-        f = np.atleast_2d(feats)
-        n = f.shape[0]
-        digits = np.rint(np.clip(f[:, : self.horizon * N_PAIRED], 0, 1) * (self.levels - 1))
-        digits = digits.astype(np.int64).reshape(n, self.horizon, N_PAIRED)
-        a = np.ravel_multi_index(tuple(np.moveaxis(digits, -1, 0)), (self.levels,) * N_PAIRED)
-        theta = (a + 0.5) / self.n_actions
-        if self.with_release:
-            r = np.rint(np.clip(f[:, -1], 0, 1) * max(self.horizon - 1, 1))
-            theta = np.concatenate([theta, ((r + 0.5) / self.horizon)[:, None]], axis=1)
-        return theta
-
-    def choices(self) -> list[torch.Tensor]:
-        """The grid values of each feature (for discrete local search)."""
-        lv = torch.linspace(0, 1, self.levels, dtype=DTYPE)
-        out = [lv] * (self.horizon * N_PAIRED)
-        if self.with_release:
-            out.append(torch.linspace(0, 1, self.horizon, dtype=DTYPE))
-        return out
-
-
 def build_gp(
     train_x: torch.Tensor,
     train_y: torch.Tensor,
@@ -297,8 +238,8 @@ class BayesOpt(Optimizer, Surrogate):
             to its lowest/highest value with probability ``corner_prob``: bang-bang actions).
         trust_region: optimise the acquisition in TuRBO-1's box around the best observation,
             its sides scaled by the GP's lengthscales (see ``trust_region_state``).
-        distinct: never suggest θ whose schedule (action indices and release step, see
-            ``LevelSpace.keys``; needs ``levels``) was observed or is pending: the acquisition's
+        distinct: never suggest θ whose schedule (``Policy.grid_from_theta``: the decoded
+            levels and release step; needs ``levels``) was observed or is pending: the acquisition's
             best local optimum with a new schedule, else the best new one of its raw samples.
     """
 
@@ -309,9 +250,15 @@ class BayesOpt(Optimizer, Surrogate):
         self.settings = _check_settings(self.dim, settings)
         s = self.settings
         self.n_initial = s.n_initial if s.n_initial is not None else self.dim + 1
-        self.space: LevelSpace | None = None
+        #: the policy's θ ↔ schedule codec, when the settings work on its level grid
+        self.policy: Policy | None = None
         if s.space == "levels" or s.initial_design == "corners" or s.distinct:
-            self.space = LevelSpace(s.levels or 2, s.horizon, self.dim == s.horizon + 1)
+            try:
+                self.policy = Policy(
+                    levels=s.levels or 2, horizon=s.horizon, with_release=self.dim > s.horizon
+                )
+            except PolicyError as exc:
+                raise SettingsError(str(exc)) from None
         self._model: SingleTaskGP | None = None
         self._model_n = -1
 
@@ -320,11 +267,23 @@ class BayesOpt(Optimizer, Surrogate):
     def _use_levels(self) -> bool:
         return self.settings.space == "levels"
 
+    def _grid(self) -> tuple[Policy, np.ndarray]:
+        """The policy and the number of values of each of its grid coordinates."""
+        assert self.policy is not None
+        return self.policy, np.asarray(self.policy.grid_sizes())
+
     def _features(self, theta: np.ndarray) -> np.ndarray:
-        if self._use_levels:
-            assert self.space is not None
-            return self.space.to_features(theta)
-        return np.atleast_2d(theta)
+        """(N, D) θ → the GP's inputs: θ, or the grid coordinates scaled to [0, 1]."""
+        if not self._use_levels:
+            return np.atleast_2d(theta)
+        policy, sizes = self._grid()
+        return policy.grid_from_theta(theta) / np.maximum(sizes - 1, 1)
+
+    def _theta_of_features(self, feats: np.ndarray) -> np.ndarray:
+        """(N, F) features on the grid → (N, D) θ at the centres of their bins."""
+        policy, sizes = self._grid()
+        scale = np.maximum(sizes - 1, 1)
+        return policy.theta_from_grid(np.rint(np.clip(np.atleast_2d(feats), 0, 1) * scale))
 
     # --- model --------------------------------------------------------------------------------
     def _on_observe(self) -> None:
@@ -404,26 +363,19 @@ class BayesOpt(Optimizer, Surrogate):
         if s.initial_design == "sobol" and not self._use_levels:
             engine = torch.quasirandom.SobolEngine(self.dim, scramble=True, seed=self.seed)
             return engine.draw(start + count, dtype=DTYPE)[start:].numpy()
-        assert self.space is not None
-        f = self.space.n_features
-        engine = torch.quasirandom.SobolEngine(f, scramble=True, seed=self.seed)
+        policy, sizes = self._grid()
+        engine = torch.quasirandom.SobolEngine(len(sizes), scramble=True, seed=self.seed)
         u = engine.draw(start + count, dtype=DTYPE)[start:].numpy()
         if s.initial_design == "corners":
             rng = np.random.default_rng([self.seed & 0xFFFFFFFF, 7, start, count])
             flip = rng.random(u.shape) < s.corner_prob
             u = np.where(flip, np.rint(rng.random(u.shape)), u)
-        n_level_feats = self.space.horizon * N_PAIRED
-        levels = np.floor(u[:, :n_level_feats] * self.space.levels).clip(0, self.space.levels - 1)
-        u[:, :n_level_feats] = levels / (self.space.levels - 1)
-        if self.space.with_release:
-            h = self.space.horizon
-            u[:, -1] = np.floor(u[:, -1] * h).clip(0, h - 1) / max(h - 1, 1)
-        return self.space.to_theta(u)
+        return policy.theta_from_grid(np.floor(u * sizes).clip(0, sizes - 1))
 
     def _keys(self, theta: np.ndarray) -> list[tuple[Any, ...]]:
         """Identity of each θ row: its schedule when the levels are known, else θ itself."""
-        if self.space is not None:
-            return list(self.space.keys(theta))
+        if self.policy is not None:
+            return [tuple(row) for row in self.policy.grid_from_theta(theta).tolist()]
         return [tuple(np.round(row, 12).tolist()) for row in np.atleast_2d(theta)]
 
     def _design_points(self, start: int, count: int, pending: np.ndarray) -> np.ndarray:
@@ -482,10 +434,8 @@ class BayesOpt(Optimizer, Surrogate):
         then hill-climbs from the best ``num_restarts`` over single-feature changes. For q > 1,
         picks greedily, each pick becoming pending for the next (MC acquisitions).
         """
-        assert self.space is not None
         s = self.settings
-        sp = self.space
-        sizes = np.array([len(c) for c in sp.choices()])  # grid points per feature
+        _, sizes = self._grid()  # grid points per feature
         scale = np.maximum(sizes - 1, 1)
 
         def to_x(idx: np.ndarray) -> torch.Tensor:
@@ -550,12 +500,11 @@ class BayesOpt(Optimizer, Surrogate):
             torch.manual_seed(seed)
             acq = self._acquisition(model, pend, q, seed)
             if self._use_levels:
-                assert self.space is not None
                 x_seen = self._train_tensors()[0]
                 if pend is not None:
                     x_seen = torch.cat([x_seen, pend])
                 cand = self._grid_search(acq, q, x_seen, np.random.default_rng(seed))
-                return self.space.to_theta(cand)
+                return self._theta_of_features(cand)
             if s.distinct:
                 seen = self.train_data()[0]
                 if len(pending):
@@ -579,10 +528,9 @@ class BayesOpt(Optimizer, Surrogate):
         nor picked before it; picks after the first are pending for the next (MC acqs)."""
         from botorch.utils.sampling import draw_sobol_samples
 
-        assert self.space is not None
         s = self.settings
         bounds = self.search_bounds()
-        seen = set(self.space.keys(seen_theta))
+        seen = set(self._keys(seen_theta))
         picks: list[np.ndarray] = []
         for k in range(q):
             cands, vals = optimize_acqf(
@@ -603,7 +551,7 @@ class BayesOpt(Optimizer, Surrogate):
                 chosen = self._best_new(raw.reshape(-1, self.dim), raw_vals.reshape(-1), seen)
             if chosen is None:
                 raise SettingsError("no schedule left that was not already observed or pending")
-            seen.update(self.space.keys(chosen[None]))
+            seen.update(self._keys(chosen[None]))
             picks.append(chosen)
             if k + 1 < q and hasattr(acq, "set_X_pending"):
                 new = torch.as_tensor(chosen[None], dtype=DTYPE)
@@ -615,9 +563,8 @@ class BayesOpt(Optimizer, Surrogate):
         self, x: torch.Tensor, vals: torch.Tensor, seen: set[tuple[int, ...]]
     ) -> np.ndarray | None:
         """The highest-valued row of ``x`` (n, dim) whose schedule key is not in ``seen``."""
-        assert self.space is not None
         xs = x.numpy()
-        keys = self.space.keys(xs)
+        keys = self._keys(xs)
         for i in torch.argsort(vals, descending=True).tolist():
             if keys[i] not in seen:
                 return xs[i].copy()

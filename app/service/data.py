@@ -17,7 +17,7 @@ from app.optim import OptimError, Surrogate
 from app.service import lifecycle as lc
 from app.service.auth import Actor
 from app.service.errors import InvalidInput
-from app.service.experiments import get_experiment, read_experiment, touch
+from app.service.experiments import executed_theta, get_experiment, read_experiment, touch
 from app.service.measurements import check_value, store_measurement
 from app.service.schemas import (
     ImportIn,
@@ -117,9 +117,11 @@ def import_observations(
             )
         except InvalidInput as exc:
             raise InvalidInput(f"observations[{i}]: {exc}") from None
-        trial.executed_theta = list(trial.theta)
         trial.executed_pressure_schedule_pa = trial.pressure_schedule_pa
         trial.executed_release_step = trial.release_step
+        trial.executed_theta = executed_theta(
+            exp, trial.theta, trial.pressure_schedule_pa, trial.release_step
+        )
         store_measurement(
             session,
             trial,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 from sqlalchemy import bindparam, func, select, update
 from sqlalchemy import inspect as sa_inspect
 from sqlalchemy.engine import Connection
@@ -43,6 +44,17 @@ def policy_of(exp: Experiment) -> Policy:
         with_release=exp.with_release,
         limits=limits_of(exp),
     )
+
+
+def executed_theta(
+    exp: Experiment, planned_theta: Any, executed_schedule_pa: Any, executed_release_step: Any
+) -> list[float]:
+    """The θ the optimiser observes for a trial of ``exp`` that ran ``executed_schedule_pa``:
+    ``Policy.executed_theta``, the one rule (the planned θ when the trial ran its plan)."""
+    theta = policy_of(exp).executed_theta(
+        np.asarray(planned_theta, dtype=np.float64), executed_schedule_pa, executed_release_step
+    )
+    return [float(v) for v in theta]
 
 
 def touch(exp: Experiment) -> None:
