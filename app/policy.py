@@ -14,16 +14,21 @@ import hashlib
 import json
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal, get_args
 
 import numpy as np
 
 N_CHAMBERS = 12
 N_PAIRED = 6
 PSI_PA = 6894.757293168
-SIM_MAX_PRESSURE_PA = 40.0 * PSI_PA  # 275.8 kPa: the simulator's command range is [0, 40 psi]
+#: 275,790.3 Pa: every chamber's command range is [0, 40 psi] (ROBOT.md; the simulator's too)
+SIM_MAX_PRESSURE_PA = 40.0 * PSI_PA
 HORIZON = 10
 EPISODE_S = 5.0
+#: the tasks (ROBOT.md); throwing alone has a release step
+TaskName = Literal["throw", "hammer", "tip_speed"]
+TASKS: tuple[str, ...] = get_args(TaskName)
+RELEASE_TASKS = frozenset({"throw"})
 
 CHAMBER_NAMES: tuple[str, ...] = tuple(
     f"j{j}.{axis}{sign}" for j in range(3) for axis in ("x", "y") for sign in ("+", "-")
@@ -53,6 +58,38 @@ def _rebuild_limit_error(
     message: str, chamber: int, step: int, value_pa: float
 ) -> PressureLimitError:
     return PressureLimitError(message, chamber=chamber, step=step, value_pa=value_pa)
+
+
+def policy_dim(horizon: int, with_release: bool) -> int:
+    """D, the length of θ: one per control step, plus one for the release step."""
+    return int(horizon) + int(with_release)
+
+
+def check_release_step(
+    release_step: Any, *, horizon: int, with_release: bool, owner: str = "this policy"
+) -> int | None:
+    """The release step as an int in 1..``horizon`` (1-based: the object is released at the end
+    of that control step), or None for a policy without one; ``owner`` names the policy in the
+    messages ("throw", "this experiment", ...).
+
+    Raises:
+        PolicyError: a missing, non-integer or out-of-range release step, or one given to a
+            policy without a release step.
+    """
+    if not with_release:
+        if release_step is not None:
+            raise PolicyError(
+                f"{owner} has no release step (release_step applies to "
+                f"{', '.join(sorted(RELEASE_TASKS))} only), got {release_step!r}"
+            )
+        return None
+    if release_step is None:
+        raise PolicyError(f"{owner} needs release_step in 1..{horizon}")
+    if isinstance(release_step, bool) or not isinstance(release_step, int | np.integer):
+        raise PolicyError(f"release_step must be an integer in 1..{horizon}, got {release_step!r}")
+    if not 1 <= int(release_step) <= horizon:
+        raise PolicyError(f"release_step must be in 1..{horizon}, got {release_step}")
+    return int(release_step)
 
 
 @dataclass(frozen=True)
@@ -201,7 +238,7 @@ class Policy:
     @property
     def dim(self) -> int:
         """D: H, plus one for the release step when throwing."""
-        return int(self.horizon) + int(self.with_release)
+        return policy_dim(self.horizon, self.with_release)
 
     @property
     def step_s(self) -> float:
@@ -276,13 +313,10 @@ class Policy:
             raise PolicyError(f"need {self.horizon} action indices, got shape {a.shape}")
         if a.min() < 0 or a.max() >= self.n_actions:
             raise PolicyError(f"action indices must lie in [0, {self.n_actions}), got {a.tolist()}")
-        if self.with_release:
-            if release_step is None or not 1 <= int(release_step) <= self.horizon:
-                raise PolicyError(f"release_step must be in 1..{self.horizon}, got {release_step}")
-            return self._bin_centres(a, np.int64(int(release_step) - 1))
-        if release_step is not None:
-            raise PolicyError("this policy has no release step")
-        return self._bin_centres(a, None)
+        release = check_release_step(
+            release_step, horizon=self.horizon, with_release=self.with_release
+        )
+        return self._bin_centres(a, None if release is None else np.int64(release - 1))
 
     def _bin_centres(self, actions: np.ndarray, release_index: np.ndarray | None) -> np.ndarray:
         """(..., H) action indices and (...) 0-based release indices → (..., D) θ at the

@@ -37,14 +37,12 @@ from app.bench.report import (
     write_results_csv,
 )
 from app.bench.runner import objective_fn, run_one
-from app.bench.specs import HORIZON, TASKS, RunSpec, make_specs, policy_dim, validate
+from app.bench.specs import RunSpec, make_specs, task_dim, validate
 from app.bench.stats import best_at, head_to_head, result_rows
 
 __all__ = [
-    "HORIZON",
     "RESULT_COLUMNS",
     "RUN_COLUMNS",
-    "TASKS",
     "RunSpec",
     "best_at",
     "cached_rows",
@@ -53,7 +51,6 @@ __all__ = [
     "make_specs",
     "objective_fn",
     "plot_curves",
-    "policy_dim",
     "read_results_csv",
     "read_run",
     "result_rows",
@@ -62,6 +59,7 @@ __all__ = [
     "run_sweep",
     "stored_rows",
     "summary_markdown",
+    "task_dim",
     "trials_done",
     "validate",
     "write_outputs",

@@ -29,10 +29,10 @@ from app.optim import Observation, build_optimizer
 
 def objective_fn(task: str, levels: int, preset: str) -> Callable[[np.ndarray], float]:
     """θ (D,) → the task objective of one simulated episode (policy decode → rollout)."""
-    from app.policy import Policy
+    from app.policy import RELEASE_TASKS, Policy
     from app.sim import SimulationDiverged, rollout
 
-    policy = Policy(levels=levels, with_release=(task == "throw"))
+    policy = Policy(levels=levels, with_release=task in RELEASE_TASKS)
 
     def f(theta: np.ndarray) -> float:
         d = policy.decode(np.clip(theta, 0.0, 1.0))

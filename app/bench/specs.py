@@ -8,9 +8,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from app.optim import METHODS, OptimizerSpec, SettingsError
+from app.policy import HORIZON, RELEASE_TASKS, TASKS, policy_dim
 
-TASKS = ("throw", "hammer", "tip_speed")
-HORIZON = 10  # H of the paper's policy: every sweep run uses it
 # Rough cost per trial, cheapest first: a sweep runs larger P first, cheap methods first within
 # a P, so an interrupted sweep still leaves complete rows for them.
 COST_RANK = {
@@ -45,7 +44,7 @@ class RunSpec:
     @property
     def with_release(self) -> bool:
         """Throwing has the release step as an extra policy parameter."""
-        return self.task == "throw"
+        return self.task in RELEASE_TASKS
 
     def optimizer_spec(self) -> OptimizerSpec:
         """The optimiser this run uses (built as the service builds an experiment's)."""
@@ -111,6 +110,6 @@ def make_specs(
     ]
 
 
-def policy_dim(task: str) -> int:
+def task_dim(task: str) -> int:
     """D of the paper's policy for ``task`` (H = 10, plus the release step when throwing)."""
-    return HORIZON + int(task == "throw")
+    return policy_dim(HORIZON, task in RELEASE_TASKS)

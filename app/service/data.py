@@ -14,6 +14,7 @@ from sqlalchemy.orm import Session
 
 from app.db.models import Measurement, Trial
 from app.optim import OptimError, Surrogate
+from app.policy import policy_dim
 from app.service import lifecycle as lc
 from app.service.auth import Actor
 from app.service.errors import InvalidInput
@@ -74,7 +75,7 @@ CSV_FIELDS = (
 def export_csv(session: Session, experiment_id: int) -> str:
     """One row per trial: index, status, objective, SEM, θ (planned and executed), times."""
     exp = get_experiment(session, experiment_id)
-    dim = exp.horizon + int(exp.with_release)
+    dim = policy_dim(exp.horizon, exp.with_release)
     trials = list_trials(session, experiment_id)
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")

@@ -14,7 +14,7 @@ from app.db.base import utcnow
 from app.db.models import AuditLog, Experiment, Trial
 from app.db.prepared import Prepared
 from app.optim.methods import METHODS, OptimizerSpec
-from app.policy import Policy, PolicyError, PressureLimits
+from app.policy import RELEASE_TASKS, Policy, PolicyError, PressureLimits
 from app.service.audit import record
 from app.service.auth import Actor
 from app.service.errors import InvalidInput, NotFound
@@ -101,7 +101,9 @@ def create_experiment(session: Session, spec: ExperimentCreate, *, actor: Actor)
     """Validate and store a new experiment (committed)."""
     from app.optim import OptimError, build_optimizer
 
-    with_release = spec.with_release if spec.with_release is not None else spec.task == "throw"
+    with_release = (
+        spec.with_release if spec.with_release is not None else spec.task in RELEASE_TASKS
+    )
     if spec.target == "hardware" and spec.limits is None:
         raise InvalidInput(
             "a hardware experiment needs limits (nominal_pa, max_step_pa, source_pa)"

@@ -13,9 +13,8 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from app.db.models import AuditLog, Experiment, Trial
 from app.optim.methods import DEFAULT_METHOD
-from app.policy import schedule_hash
+from app.policy import TaskName, policy_dim, schedule_hash
 
-TaskName = Literal["throw", "hammer", "tip_speed"]
 Target = Literal["sim", "hardware"]
 ExperimentStatus = Literal["active", "paused", "completed", "archived"]
 Acquisition = Literal["logei", "ucb", "qlognei"]
@@ -134,7 +133,7 @@ class ExperimentRead(BaseModel):
             levels=exp.levels,
             horizon=exp.horizon,
             with_release=exp.with_release,
-            dim=exp.horizon + int(exp.with_release),
+            dim=policy_dim(exp.horizon, exp.with_release),
             limits=limits,
             method=exp.method,
             acquisition=exp.acquisition,
