@@ -38,7 +38,7 @@ from botorch.models.utils.gpytorch_modules import (
     get_gaussian_likelihood_with_gamma_prior,
     get_matern_kernel_with_gamma_prior,
 )
-from botorch.optim import optimize_acqf
+from botorch.optim import optimize_acqf, optimize_acqf_discrete_local_search
 from botorch.sampling import SobolQMCNormalSampler
 from gpytorch.mlls import ExactMarginalLogLikelihood
 
@@ -430,66 +430,44 @@ class BayesOpt(Optimizer, Surrogate):
     ) -> np.ndarray:
         """Maximise ``acq`` over the level grid: (q, F) features, none of them already seen.
 
-        Scores ``raw_samples`` random grid points plus mutants of the best observations,
-        then hill-climbs from the best ``num_restarts`` over single-feature changes. For q > 1,
-        picks greedily, each pick becoming pending for the next (MC acquisitions).
+        BoTorch's ``optimize_acqf_discrete_local_search``: from each start, best-improvement
+        moves of one grid coordinate until a local optimum; for q > 1 greedily, each pick
+        pending for the next and avoided. The first pick starts from the best
+        ``num_restarts`` of ``raw_samples`` random grid points plus mutants of the best
+        observations (the acquisition's peaks are often near them).
         """
         s = self.settings
         _, sizes = self._grid()  # grid points per feature
         scale = np.maximum(sizes - 1, 1)
-
-        def to_x(idx: np.ndarray) -> torch.Tensor:
-            return torch.as_tensor(idx / scale, dtype=DTYPE)
-
-        def score(idx: np.ndarray) -> np.ndarray:
-            with torch.no_grad():
-                xs = to_x(idx).unsqueeze(-2)
-                vals = [acq(xs[i : i + 1024]) for i in range(0, len(xs), 1024)]
-            return torch.cat(vals).numpy()
-
-        seen = {tuple(r) for r in np.rint(x_seen.numpy() * scale).astype(np.int64)}
+        seen_x = x_seen.numpy()
+        seen = {tuple(r) for r in np.rint(seen_x * scale).astype(np.int64).tolist()}
         _, y, _ = self.train_data()
-        top = np.rint(x_seen.numpy()[: len(y)][np.argsort(-y)[:5]] * scale).astype(np.int64)
-        picks: list[np.ndarray] = []
-        for _ in range(q):
-            pool = [rng.integers(0, sizes, size=(s.raw_samples, len(sizes)))]
-            for base in top:
-                mut = np.repeat(base[None], 64, axis=0)
-                for row in mut:
-                    k = rng.integers(1, 4)
-                    j = rng.choice(len(sizes), size=k, replace=False)
-                    row[j] = rng.integers(0, sizes[j])
-                pool.append(mut)
-            cand = np.unique(np.concatenate(pool), axis=0)
-            cand = cand[[tuple(r) not in seen for r in cand]]
-            vals = score(cand)
-            order = np.argsort(-vals)[: s.num_restarts]
-            starts, start_vals = cand[order], vals[order]
-            for _round in range(20):
-                moved = False
-                for i in range(len(starts)):
-                    nb = np.repeat(starts[i][None], int(sizes.sum()), axis=0)
-                    feat = np.repeat(np.arange(len(sizes)), sizes)
-                    lvl = np.concatenate([np.arange(n) for n in sizes])
-                    nb[np.arange(len(nb)), feat] = lvl
-                    keep = [(tuple(r) not in seen) and (r != starts[i]).any() for r in nb]
-                    nb = nb[keep]
-                    if not len(nb):
-                        continue
-                    v = score(nb)
-                    j = int(np.argmax(v))
-                    if v[j] > start_vals[i]:
-                        starts[i], start_vals[i], moved = nb[j], v[j], True
-                if not moved:
-                    break
-            best = starts[int(np.argmax(start_vals))]
-            picks.append(best)
-            seen.add(tuple(best))
-            if q > 1 and hasattr(acq, "set_X_pending"):
-                prev = acq.X_pending
-                new = to_x(best[None])
-                acq.set_X_pending(new if prev is None else torch.cat([prev, new]))
-        return np.stack(picks) / scale
+        top = np.rint(seen_x[: len(y)][np.argsort(-y)[:5]] * scale).astype(np.int64)
+        pool = [rng.integers(0, sizes, size=(s.raw_samples, len(sizes)))]
+        for base in top:
+            mut = np.repeat(base[None], 64, axis=0)
+            for row in mut:
+                k = rng.integers(1, 4)
+                j = rng.choice(len(sizes), size=k, replace=False)
+                row[j] = rng.integers(0, sizes[j])
+            pool.append(mut)
+        cand = np.unique(np.concatenate(pool), axis=0)
+        cand = torch.as_tensor(cand[[tuple(r) not in seen for r in cand.tolist()]] / scale)
+        with torch.no_grad():
+            xs = cand.unsqueeze(-2)
+            vals = torch.cat([acq(xs[i : i + 1024]) for i in range(0, len(xs), 1024)]).numpy()
+        starts = cand[np.argsort(-vals)[: s.num_restarts]].unsqueeze(-2)
+        picks, _ = optimize_acqf_discrete_local_search(
+            acq,
+            discrete_choices=[torch.arange(n, dtype=DTYPE) / max(n - 1, 1) for n in sizes],
+            q=q,
+            num_restarts=s.num_restarts,
+            raw_samples=s.raw_samples,
+            X_avoid=x_seen,
+            batch_initial_conditions=starts,
+            return_acq_values=False,
+        )
+        return picks.numpy()
 
     def _acquire(self, q: int, pending: np.ndarray) -> np.ndarray:
         s = self.settings
