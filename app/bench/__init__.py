@@ -39,29 +39,25 @@ from app.bench.report import (
 from app.bench.runner import objective_fn, run_one
 from app.bench.specs import (
     COMMAND_HOLDS,
-    HORIZON,
     OBJECTIVE_RULES,
     PAPER_COMMAND_HOLD,
     PAPER_OBJECTIVE_RULE,
     PAPER_PRESET,
-    TASKS,
     RunSpec,
     make_specs,
-    policy_dim,
+    task_dim,
     validate,
 )
 from app.bench.stats import best_at, head_to_head, result_rows
 
 __all__ = [
     "COMMAND_HOLDS",
-    "HORIZON",
     "OBJECTIVE_RULES",
     "PAPER_COMMAND_HOLD",
     "PAPER_OBJECTIVE_RULE",
     "PAPER_PRESET",
     "RESULT_COLUMNS",
     "RUN_COLUMNS",
-    "TASKS",
     "RunSpec",
     "best_at",
     "cached_rows",
@@ -70,7 +66,6 @@ __all__ = [
     "make_specs",
     "objective_fn",
     "plot_curves",
-    "policy_dim",
     "read_results_csv",
     "read_run",
     "result_rows",
@@ -79,6 +74,7 @@ __all__ = [
     "run_sweep",
     "stored_rows",
     "summary_markdown",
+    "task_dim",
     "trials_done",
     "validate",
     "write_outputs",

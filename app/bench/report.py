@@ -11,9 +11,10 @@ from typing import Any
 
 import numpy as np
 
-from app.bench.specs import TASKS, RunSpec
+from app.bench.specs import RunSpec
 from app.bench.stats import best_at, head_to_head, result_rows
 from app.optim import DEFAULT_METHOD
+from app.policy import TASKS
 
 RESULT_COLUMNS = (
     "method", "task", "levels", "seed", "trial", "objective", "best_so_far", "wall_s",

@@ -1,6 +1,7 @@
 """One run of a sweep: ``budget`` trials of suggest → decode → rollout → observe, cached trial
 by trial so an interrupted run resumes to the same result (suggestions are pure functions of
-the data)."""
+the data). The simulator runs the plan exactly, so the optimiser observes the planned θ: what
+``Policy.executed_theta`` gives, as in the service."""
 
 from __future__ import annotations
 
@@ -35,10 +36,10 @@ def objective_fn(
 ) -> Callable[[np.ndarray], float]:
     """θ (D,) → the task objective of one simulated episode (policy decode → rollout), with
     the commands held or ramped and scored by the rule given (``app.sim.rollout``)."""
-    from app.policy import Policy
+    from app.policy import RELEASE_TASKS, Policy
     from app.sim import SimulationDiverged, rollout
 
-    policy = Policy(levels=levels, with_release=(task == "throw"))
+    policy = Policy(levels=levels, with_release=task in RELEASE_TASKS)
 
     def f(theta: np.ndarray) -> float:
         d = policy.decode(np.clip(theta, 0.0, 1.0))

@@ -10,13 +10,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from app.optim import METHODS, OptimizerSpec, SettingsError
+from app.policy import HORIZON, RELEASE_TASKS, TASKS, policy_dim
 
 # app.sim's COMMAND_HOLDS and OBJECTIVE_RULES (not imported: the specs stay free of MuJoCo)
 COMMAND_HOLDS = ("zero", "linear")
 OBJECTIVE_RULES = ("paper", "published")
 
-TASKS = ("throw", "hammer", "tip_speed")
-HORIZON = 10  # H of the paper's policy: every sweep run uses it
 # The simulator settings that reproduce the paper's tables, chosen by measurement against the
 # published simulator's random-search anchor (docs/bench/paper.md): commands ramped over each
 # step, the published code's scoring, and the fast physics preset (its welded cube matched the
@@ -68,7 +67,7 @@ class RunSpec:
     @property
     def with_release(self) -> bool:
         """Throwing has the release step as an extra policy parameter."""
-        return self.task == "throw"
+        return self.task in RELEASE_TASKS
 
     def optimizer_spec(self) -> OptimizerSpec:
         """The optimiser this run uses (built as the service builds an experiment's)."""
@@ -154,6 +153,6 @@ def make_specs(
     ]
 
 
-def policy_dim(task: str) -> int:
+def task_dim(task: str) -> int:
     """D of the paper's policy for ``task`` (H = 10, plus the release step when throwing)."""
-    return HORIZON + int(task == "throw")
+    return policy_dim(HORIZON, task in RELEASE_TASKS)

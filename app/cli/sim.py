@@ -50,6 +50,8 @@ def _parse_theta(raw: str) -> np.ndarray:
 
 
 def _read_schedule(path: Path, task: str) -> tuple[np.ndarray, int | None]:
+    from app.policy import RELEASE_TASKS, PolicyError, check_release_step
+
     try:
         doc = json.loads(path.read_text())
     except OSError as exc:
@@ -70,14 +72,15 @@ def _read_schedule(path: Path, task: str) -> tuple[np.ndarray, int | None]:
     if not all(isinstance(v, int | float) and not isinstance(v, bool) for r in rows for v in r):
         raise BadInput(f"{path}: pressures_pa must contain only numbers (Pa)")
     schedule = np.asarray(rows, dtype=np.float64)
-    release = doc.get("release_step")
-    if task == "throw":
-        if release is None:
-            raise BadInput(f"{path}: throw needs release_step (1..{len(rows)})")
-        if isinstance(release, bool) or not isinstance(release, int):
-            raise BadInput(f"{path}: release_step must be an integer, got {release!r}")
-    elif release is not None:
-        raise BadInput(f"{path}: release_step applies to throw only, not {task}")
+    try:
+        release = check_release_step(
+            doc.get("release_step"),
+            horizon=len(rows),
+            with_release=task in RELEASE_TASKS,
+            owner=task,
+        )
+    except PolicyError as exc:
+        raise BadInput(f"{path}: {exc}") from None
     return schedule, release
 
 
@@ -170,7 +173,7 @@ def _run(
     command_hold: str = "zero",
     objective: str = "paper",
 ) -> dict[str, Any] | None:
-    from app.policy import Policy, PolicyError
+    from app.policy import RELEASE_TASKS, Policy, PolicyError
     from app.sim import (
         COMMAND_HOLDS,
         OBJECTIVE_RULES,
@@ -227,7 +230,7 @@ def _run(
             pressure_schedule_pa, release_step = _read_schedule(schedule_path, task)
         else:
             p_levels = _parse_int("--levels", levels, 2, 1000) if levels is not None else None
-            policy = Policy(levels=p_levels or DEFAULT_LEVELS, with_release=(task == "throw"))
+            policy = Policy(levels=p_levels or DEFAULT_LEVELS, with_release=task in RELEASE_TASKS)
             if random:
                 rng_seed = _parse_int("--seed", seed, 0, 2**63 - 1) if seed is not None else 0
                 th = np.random.default_rng(rng_seed).uniform(size=policy.dim)

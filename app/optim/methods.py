@@ -13,6 +13,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from app.policy import policy_dim
+
 # BO variants: method name → fixed settings (a caller's settings may override them).
 BO_METHODS: dict[str, dict[str, Any]] = {
     "bo-lei": {"acquisition": "logei", "model_preset": "paper"},
@@ -74,7 +76,7 @@ class OptimizerSpec:
     @property
     def dim(self) -> int:
         """D: one θ per control step, plus the release step."""
-        return self.horizon + int(self.with_release)
+        return policy_dim(self.horizon, self.with_release)
 
     def kwargs(self) -> dict[str, Any]:
         """The settings ``make_optimizer(method, dim, seed=seed, **kwargs)`` gets: the BO

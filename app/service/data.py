@@ -14,10 +14,11 @@ from sqlalchemy.orm import Session
 
 from app.db.models import Measurement, Trial
 from app.optim import OptimError, Surrogate
+from app.policy import policy_dim
 from app.service import lifecycle as lc
 from app.service.auth import Actor
 from app.service.errors import InvalidInput
-from app.service.experiments import get_experiment, read_experiment, touch
+from app.service.experiments import executed_theta, get_experiment, read_experiment, touch
 from app.service.measurements import check_value, store_measurement
 from app.service.schemas import (
     ImportIn,
@@ -75,7 +76,7 @@ def export_csv(session: Session, experiment_id: int) -> str:
     """One row per trial: index, status, objective, SEM, θ (planned and executed), times, and
     the experiment's command hold (how the schedule's rows were applied)."""
     exp = get_experiment(session, experiment_id)
-    dim = exp.horizon + int(exp.with_release)
+    dim = policy_dim(exp.horizon, exp.with_release)
     trials = list_trials(session, experiment_id)
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
@@ -120,9 +121,11 @@ def import_observations(
             )
         except InvalidInput as exc:
             raise InvalidInput(f"observations[{i}]: {exc}") from None
-        trial.executed_theta = list(trial.theta)
         trial.executed_pressure_schedule_pa = trial.pressure_schedule_pa
         trial.executed_release_step = trial.release_step
+        trial.executed_theta = executed_theta(
+            exp, trial.theta, trial.pressure_schedule_pa, trial.release_step
+        )
         store_measurement(
             session,
             trial,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 from sqlalchemy import bindparam, func, select, update
 from sqlalchemy import inspect as sa_inspect
 from sqlalchemy.engine import Connection
@@ -13,7 +14,7 @@ from app.db.base import utcnow
 from app.db.models import AuditLog, Experiment, Trial
 from app.db.prepared import Prepared
 from app.optim.methods import METHODS, OptimizerSpec
-from app.policy import Policy, PolicyError, PressureLimits
+from app.policy import RELEASE_TASKS, Policy, PolicyError, PressureLimits
 from app.service.audit import record
 from app.service.auth import Actor
 from app.service.errors import InvalidInput, NotFound
@@ -43,6 +44,17 @@ def policy_of(exp: Experiment) -> Policy:
         with_release=exp.with_release,
         limits=limits_of(exp),
     )
+
+
+def executed_theta(
+    exp: Experiment, planned_theta: Any, executed_schedule_pa: Any, executed_release_step: Any
+) -> list[float]:
+    """The θ the optimiser observes for a trial of ``exp`` that ran ``executed_schedule_pa``:
+    ``Policy.executed_theta``, the one rule (the planned θ when the trial ran its plan)."""
+    theta = policy_of(exp).executed_theta(
+        np.asarray(planned_theta, dtype=np.float64), executed_schedule_pa, executed_release_step
+    )
+    return [float(v) for v in theta]
 
 
 def touch(exp: Experiment) -> None:
@@ -89,7 +101,9 @@ def create_experiment(session: Session, spec: ExperimentCreate, *, actor: Actor)
     """Validate and store a new experiment (committed)."""
     from app.optim import OptimError, build_optimizer
 
-    with_release = spec.with_release if spec.with_release is not None else spec.task == "throw"
+    with_release = (
+        spec.with_release if spec.with_release is not None else spec.task in RELEASE_TASKS
+    )
     if spec.target == "hardware" and spec.limits is None:
         raise InvalidInput(
             "a hardware experiment needs limits (nominal_pa, max_step_pa, source_pa)"

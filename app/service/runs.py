@@ -22,7 +22,7 @@ from app.service import lifecycle as lc
 from app.service.artifacts import npz_to_json, store_trajectory
 from app.service.auth import Actor
 from app.service.errors import Conflict, NotFound
-from app.service.experiments import touch
+from app.service.experiments import executed_theta, touch
 from app.service.measurements import check_value, store_measurement
 from app.service.schemas import PreviewJobRead, TrialRead
 from app.service.trials import check_schedule_safe, get_trial
@@ -76,7 +76,7 @@ def run_trial(db: Database, trial_id: int, *, actor: Actor, artifacts_dir: Path)
             return TrialRead.build(trial)
         trial.executed_pressure_schedule_pa = np.asarray(sched).tolist()
         trial.executed_release_step = release
-        trial.executed_theta = list(trial.theta)
+        trial.executed_theta = executed_theta(exp, trial.theta, sched, release)
         if result is None:
             lc.transition(
                 s,

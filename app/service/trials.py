@@ -22,7 +22,13 @@ from app.optim import (
     Surrogate,
     build_optimizer,
 )
-from app.policy import Policy, PolicyError, PressureLimitError, schedule_hash
+from app.policy import (
+    Policy,
+    PolicyError,
+    PressureLimitError,
+    check_release_step,
+    schedule_hash,
+)
 from app.service import lifecycle as lc
 from app.service.audit import record
 from app.service.auth import Actor
@@ -106,11 +112,15 @@ def check_schedule_safe(exp: Experiment, schedule: Any, release_step: int | None
         raise SafetyViolation(f"schedule beyond the pressure limits: {exc}") from None
     except (PolicyError, ValueError, TypeError) as exc:
         raise SafetyViolation(f"schedule refused: {exc}") from None
-    if exp.with_release:
-        if release_step is None or not 1 <= int(release_step) <= exp.horizon:
-            raise SafetyViolation(f"release_step must be in 1..{exp.horizon}, got {release_step}")
-    elif release_step is not None:
-        raise SafetyViolation("this experiment has no release step")
+    try:
+        check_release_step(
+            release_step,
+            horizon=exp.horizon,
+            with_release=exp.with_release,
+            owner="this experiment",
+        )
+    except PolicyError as exc:
+        raise SafetyViolation(str(exc)) from None
     return sched
 
 

@@ -26,10 +26,9 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from app.policy import TASKS
 from app.sim.params import ArmParams, LinkParams
 from app.sim.presets import Preset, get_preset
-
-TASKS: tuple[str, ...] = ("throw", "hammer", "tip_speed")
 
 EEF_SITE = "eef"
 GRIP_WELD = "grip"

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-PSI_TO_PA_PUBLISHED = 6895.0  # the published simulator's psi→Pa factor (40 psi = 275.8 kPa)
+from app.policy import SIM_MAX_PRESSURE_PA
 
 
 @dataclass(frozen=True)
@@ -234,7 +234,7 @@ class ArmParams:
     links: tuple[LinkParams, ...] = field(default_factory=_default_links)
     base_half_size_m: tuple[float, float, float] = (0.19685, 0.19685, 0.14)
     base_yaw_rad: float = math.radians(45.0)
-    max_pressure_pa: float = 40.0 * PSI_TO_PA_PUBLISHED
+    max_pressure_pa: float = SIM_MAX_PRESSURE_PA
     gravity_m_s2: tuple[float, float, float] = (0.0, 0.0, -9.81)
     eef_offset_disk_heights: float = 1.5
     gripper: GripperParams = field(default_factory=GripperParams)

@@ -56,7 +56,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from app.policy import EPISODE_S, PolicyError, check_schedule
+from app.policy import EPISODE_S, RELEASE_TASKS, PolicyError, check_release_step, check_schedule
 from app.sim.model import (
     CUBE_BODY,
     CUBE_ORIGIN_SENSOR,
@@ -326,20 +326,16 @@ def _check_inputs(
         sched = check_schedule(schedule, lower_pa=0.0, upper_pa=params.max_pressure_pa)
     except PolicyError as exc:
         raise ValueError(str(exc)) from exc
-    horizon = sched.shape[0]
-    if task == "throw":
-        if release_step is None:
-            raise ValueError(f"throw needs release_step in 1..{horizon}")
-        if isinstance(release_step, bool) or not isinstance(release_step, int | np.integer):
-            raise ValueError(
-                f"release_step must be an integer in 1..{horizon}, got {release_step!r}"
-            )
-        if not 1 <= int(release_step) <= horizon:
-            raise ValueError(f"release_step must be in 1..{horizon}, got {release_step}")
-        return sched, int(release_step)
-    if release_step is not None:
-        raise ValueError(f"release_step only applies to throw, not {task}")
-    return sched, None
+    try:
+        release = check_release_step(
+            release_step,
+            horizon=sched.shape[0],
+            with_release=task in RELEASE_TASKS,
+            owner=task,
+        )
+    except PolicyError as exc:
+        raise ValueError(str(exc)) from None
+    return sched, release
 
 
 def _diverged(task: str, preset: str, t: float, why: str) -> SimulationDiverged:

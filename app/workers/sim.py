@@ -109,14 +109,8 @@ def _warm_up() -> None:
 
 
 def experiment_preset(experiment: Mapping[str, Any]) -> str:
-    """The simulator preset an experiment asks for (default: reference)."""
-    for key in ("sim_preset", "preset"):
-        if experiment.get(key):
-            return str(experiment[key])
-    settings = experiment.get("settings")
-    if isinstance(settings, Mapping) and settings.get("preset"):
-        return str(settings["preset"])
-    return "reference"
+    """The simulator preset an experiment asks for (``ExperimentRead.sim_preset``)."""
+    return str(experiment["sim_preset"])
 
 
 def experiment_command_hold(experiment: Mapping[str, Any]) -> str:

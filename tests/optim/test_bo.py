@@ -13,7 +13,6 @@ from gpytorch.kernels import MaternKernel, ScaleKernel
 from gpytorch.likelihoods import FixedNoiseGaussianLikelihood
 
 from app.optim import METHODS, BayesOpt, Observation, SettingsError, make_optimizer
-from app.optim.bo import LevelSpace
 from app.policy import Policy
 
 FAST = {"num_restarts": 2, "raw_samples": 64, "fit_maxiter": 50}
@@ -103,33 +102,28 @@ def test_rebuilding_from_observations_gives_the_live_suggestion(method):
 def test_distinct_never_suggests_a_schedule_already_run_or_pending():
     # |θ − ½| summed rewards the box's corners; at P = 2, H = 4 the corners of θ are schedules
     # a plain θ-space GP keeps coming back to (θ 0.001 and 0.002 decode to the same action).
-    space = LevelSpace(2, 4, False)
+    policy = Policy(levels=2, horizon=4)
+
+    def keys_of(theta: np.ndarray) -> list[tuple[int, ...]]:
+        return [tuple(row) for row in policy.grid_from_theta(theta).tolist()]
+
     f = lambda th: float(np.abs(th - 0.5).sum())  # noqa: E731
     settings = {"levels": 2, "horizon": 4, "n_initial": 4, **FAST}
     opt = make_optimizer("bo-lei-distinct", 4, seed=0, **settings)
     pending = None
     for _ in range(14):
         x = opt.suggest(2, pending=pending) if pending is not None else opt.suggest(1)
-        keys = space.keys(x)
+        keys = keys_of(x)
         assert len(set(keys)) == len(keys)
-        assert not set(keys) & set(space.keys(opt.train_data()[0]))
+        assert not set(keys) & set(keys_of(opt.train_data()[0]))
         if pending is not None:
-            assert not set(keys) & set(space.keys(pending))
+            assert not set(keys) & set(keys_of(pending))
         opt.observe(x[0], f(x[0]))
         pending = x[1:] if len(x) > 1 else np.array([[0.999, 0.999, 0.001, 0.5]])
-    assert len(set(space.keys(opt.train_data()[0]))) == opt.n_observed == 14
+    assert len(set(keys_of(opt.train_data()[0]))) == opt.n_observed == 14
     rebuilt = make_optimizer("bo-lei-distinct", 4, seed=0, **settings)
     rebuilt.observe_many(opt.observations)
     np.testing.assert_array_equal(opt.suggest(1), rebuilt.suggest(1))
-
-
-def test_level_space_keys_are_the_decoded_schedule():
-    policy = Policy(levels=3, with_release=True)
-    space = LevelSpace(3, 10, True)
-    theta = np.random.default_rng(4).random((50, 11))
-    for th, key in zip(theta, space.keys(theta), strict=True):
-        d = policy.decode(th)
-        assert key == (*d.action_indices.tolist(), d.release_step - 1)  # 1-based step
 
 
 def test_trust_region_grows_on_successes_shrinks_on_failures_and_restarts():
@@ -278,37 +272,18 @@ def test_new_experiments_default_to_the_optimisers_default_method():
     assert spec.method == DEFAULT_METHOD
 
 
-@pytest.mark.parametrize(("levels", "with_release"), [(2, False), (5, True), (3, True)])
-def test_level_space_matches_the_policy_decoding(levels, with_release):
-    policy = Policy(levels=levels, with_release=with_release)
-    space = LevelSpace(levels, 10, with_release)
-    rng = np.random.default_rng(levels)
-    theta = rng.random((20, policy.dim))
-    feats = space.to_features(theta)
-    for th, f in zip(theta, feats, strict=True):
-        d = policy.decode(th)
-        np.testing.assert_array_equal(np.rint(f[:60] * (levels - 1)), d.level_indices.ravel())
-        if with_release:
-            assert round(f[60] * 9) + 1 == d.release_step
-    back = space.to_theta(feats)
-    for th, b in zip(theta, back, strict=True):
-        d1, d2 = policy.decode(th), policy.decode(b)
-        np.testing.assert_array_equal(d1.action_indices, d2.action_indices)
-        assert d1.release_step == d2.release_step
-
-
 def test_handful_bo_suggests_unseen_grid_points_and_rebuilds_identically():
     settings = {"levels": 2, "raw_samples": 64, "num_restarts": 2, "fit_maxiter": 20}
     opt = live("bo-levels", 11, 13, seed=2, **settings)
-    space = LevelSpace(2, 10, True)
-    seen = {tuple(r) for r in space.to_features(opt.train_data()[0])}
+    policy = Policy(levels=2, with_release=True)
+    seen = {tuple(r) for r in policy.grid_from_theta(opt.train_data()[0]).tolist()}
     x = opt.suggest(1)
-    assert tuple(space.to_features(x)[0]) not in seen
+    assert tuple(policy.grid_from_theta(x)[0].tolist()) not in seen
     rebuilt = make_optimizer("bo-levels", 11, seed=2, **settings)
     rebuilt.observe_many([Observation(o.theta, o.value) for o in opt.observations])
     np.testing.assert_array_equal(x, rebuilt.suggest(1))
     x2 = opt.suggest(1, pending=x)
-    assert tuple(space.to_features(x2)[0]) != tuple(space.to_features(x)[0])
+    assert not np.array_equal(policy.grid_from_theta(x2), policy.grid_from_theta(x))
     assert opt.lengthscales().shape == (11,)
 
 

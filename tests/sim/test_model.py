@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from app.policy import CHAMBER_NAMES
+from app.policy import CHAMBER_NAMES, SIM_MAX_PRESSURE_PA
 from app.sim import TASKS, ArmParams, GripperParams, build_model, export_xml
 from app.sim.model import EEF_SITE, disk_body_name, hinge_joint_name
 
@@ -86,7 +86,7 @@ def test_actuators_follow_chamber_order(arm: mujoco.MjModel) -> None:
         assert act.gear[0] == pytest.approx(sign * (0.10, 0.05, 0.05)[j])
         assert act.gainprm[0] == pytest.approx(areas[j])
         assert act.dynprm[0] == pytest.approx((0.2, 0.5, 0.8)[j])
-        np.testing.assert_allclose(act.ctrlrange, [0, 40 * 6895.0])
+        np.testing.assert_allclose(act.ctrlrange, [0, SIM_MAX_PRESSURE_PA])
     # each tendon sums its joint's nine x (or y) hinges with coefficient 1
     assert arm.ntendon == 6
     np.testing.assert_array_equal(arm.tendon_num, [9] * 6)

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from app.policy import SIM_MAX_PRESSURE_PA
 from app.workers.drivers.base import (
     DriverCommand,
     DriverError,
@@ -45,8 +46,6 @@ from app.workers.drivers.base import (
 )
 
 log = logging.getLogger(__name__)
-
-SIM_MAX_PRESSURE_PA = 275_790.0  # the simulator's command range is [0, 40 psi]
 
 
 def _as_bool(value: str | bool) -> bool:

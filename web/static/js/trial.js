@@ -56,9 +56,9 @@ function renderMeasurements(t) {
 }
 
 function renderAudit(t) {
-  const entries = t.audit || t.audit_trail || t.audit_log || [];
+  const entries = t.audit;
   const rows = entries.map((a) => el("tr", {},
-    el("td", {}, fmtTime(a.at || a.created_at)), el("td", {}, a.actor || "—"), el("td", {}, a.action),
+    el("td", {}, fmtTime(a.at)), el("td", {}, a.actor || "—"), el("td", {}, a.action),
     el("td", {}, a.before || a.after ? `${a.before ?? "—"} → ${a.after ?? "—"}` : ""),
     el("td", { class: "small" }, a.detail ? JSON.stringify(a.detail) : "")));
   $("#audit-table tbody").replaceChildren(...rows);
