@@ -20,9 +20,9 @@ import numpy as np
 
 N_CHAMBERS = 12
 N_PAIRED = 6
-PSI_PA = 6894.757293168
-#: 275,790.3 Pa: every chamber's command range is [0, 40 psi] (ROBOT.md; the simulator's too)
-SIM_MAX_PRESSURE_PA = 40.0 * PSI_PA
+#: 275,800 Pa: every chamber's command range is [0, 275.8 kPa] (ROBOT.md: 40 psi, as the
+#: published simulator writes it; its reference runs in tests/sim/data command exactly 275,800)
+SIM_MAX_PRESSURE_PA = 275_800.0
 HORIZON = 10
 EPISODE_S = 5.0
 #: the tasks (ROBOT.md); throwing alone has a release step

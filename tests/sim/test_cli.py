@@ -52,7 +52,7 @@ def test_console_script_refuses_negative_pressure_file(tmp_path: Path) -> None:
     assert out.returncode == 2
     assert out.stderr == (
         "handful sim: error: step 10, chamber j0.x+: -3.0 Pa is outside the allowed "
-        "[0.0, 275790.3] Pa\n"
+        "[0.0, 275800.0] Pa\n"
     )
 
 
