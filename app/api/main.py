@@ -47,7 +47,11 @@ async def _sweep_forever(app: FastAPI) -> None:
 
     def sweep() -> int:
         with db.write() as s:
-            return sweep_expired(s, max_attempts=settings.max_attempts)
+            return sweep_expired(
+                s,
+                max_attempts=settings.max_attempts,
+                orphan_after_s=max(60.0, settings.lease_seconds),
+            )
 
     while True:
         await asyncio.sleep(settings.lease_sweep_interval_s)

@@ -72,20 +72,26 @@ def theta_from_schedule(
 
 
 # --- expiry ----------------------------------------------------------------------------------
+SERVICE_WORKER = "service"  # the worker_id of a run inside the server (app.service.runs)
+
+
 def grant_restart_grace(
     session: Session, *, lease_seconds: float, now: datetime | None = None
 ) -> int:
-    """At server start: give every active lease ``lease_seconds`` from now. Flushes.
+    """At server start: give every active worker lease ``lease_seconds`` from now. Flushes.
 
     Leases run on wall-clock time, but a worker cannot heartbeat while the server is down; without
     this a slow restart would expire healthy leases and rerun (or, on hardware, hold for review)
     trials whose workers are still busy with them. A worker that really died still loses its
-    lease ``lease_seconds`` after the restart.
+    lease ``lease_seconds`` after the restart. Runs inside a server (``SERVICE_WORKER``) get no
+    grace: the process renewing them is gone unless another server still renews them.
     """
     now = now or utcnow()
     until = now + timedelta(seconds=lease_seconds)
     n = 0
-    for lease in session.scalars(select(Lease).where(Lease.status == "active")):
+    for lease in session.scalars(
+        select(Lease).where(Lease.status == "active", Lease.worker_id != SERVICE_WORKER)
+    ):
         if lease.expires_at < until:
             lease.expires_at = until
             n += 1
@@ -93,8 +99,29 @@ def grant_restart_grace(
     return n
 
 
-def sweep_expired(session: Session, *, max_attempts: int, now: datetime | None = None) -> int:
-    """Expire every active lease past its time; requeue/fail/needs_review its trial. Flushes."""
+def _expired_outcome(exp: Experiment, trial: Trial, why: str, max_attempts: int) -> tuple[str, str]:
+    if exp.target == "hardware":
+        return lc.NEEDS_REVIEW, f"{why}; a hardware trial is never rerun on its own"
+    if trial.attempts < max_attempts:
+        return lc.QUEUED, f"{why}; requeued (attempt {trial.attempts}/{max_attempts})"
+    return lc.FAILED, f"{why}; {trial.attempts} attempts, giving up"
+
+
+def sweep_expired(
+    session: Session,
+    *,
+    max_attempts: int,
+    now: datetime | None = None,
+    orphan_after_s: float = 60.0,
+) -> int:
+    """Expire every active lease past its time; requeue/fail/needs_review its trial. Flushes.
+
+    A sim trial run inside a server whose lease expired (the server died or stopped
+    renewing it) fails with that reason. A trial ``running`` for ``orphan_after_s`` with no
+    active lease at all (left by an older version, or by hand) fails (sim) or goes to
+    needs_review (hardware) too: no trial stays running for ever. Returns the leases expired
+    plus the orphans ended.
+    """
     now = now or utcnow()
     leases = list(
         session.scalars(select(Lease).where(Lease.status == "active", Lease.expires_at < now))
@@ -120,13 +147,15 @@ def sweep_expired(session: Session, *, max_attempts: int, now: datetime | None =
         )
         if trial.status != lc.RUNNING:
             continue
-        why = f"worker {lease.worker_id} stopped heartbeating (lease {lease.id} expired)"
-        if exp.target == "hardware":
-            new, reason = lc.NEEDS_REVIEW, f"{why}; a hardware trial is never rerun on its own"
-        elif trial.attempts < max_attempts:
-            new, reason = lc.QUEUED, f"{why}; requeued (attempt {trial.attempts}/{max_attempts})"
+        if lease.worker_id == SERVICE_WORKER:
+            new, reason = (
+                lc.FAILED,
+                f"the server stopped while simulating it (service lease {lease.id} expired "
+                "unrenewed); nothing was recorded",
+            )
         else:
-            new, reason = lc.FAILED, f"{why}; {trial.attempts} attempts, giving up"
+            why = f"worker {lease.worker_id} stopped heartbeating (lease {lease.id} expired)"
+            new, reason = _expired_outcome(exp, trial, why, max_attempts)
         lc.transition(
             session,
             trial,
@@ -137,8 +166,37 @@ def sweep_expired(session: Session, *, max_attempts: int, now: datetime | None =
             now=now,
         )
         touch(exp)
+    has_lease = (
+        select(Lease.id).where(Lease.trial_id == Trial.id, Lease.status == "active").exists()
+    )
+    orphans = list(
+        session.scalars(
+            select(Trial).where(
+                Trial.status == lc.RUNNING,
+                Trial.updated_at < now - timedelta(seconds=orphan_after_s),
+                ~has_lease,
+            )
+        )
+    )
+    for trial in orphans:
+        exp = trial.experiment
+        why = f"running for over {orphan_after_s:g} s with no lease (nothing is running it)"
+        if exp.target == "hardware":
+            new, reason = lc.NEEDS_REVIEW, f"{why}; a person decides"
+        else:
+            new, reason = lc.FAILED, why
+        lc.transition(
+            session,
+            trial,
+            new,
+            actor=SYSTEM_ACTOR,
+            reason=reason,
+            action="trial.orphan_swept",
+            now=now,
+        )
+        touch(exp)
     session.flush()
-    return len(leases)
+    return len(leases) + len(orphans)
 
 
 # --- claim -----------------------------------------------------------------------------------

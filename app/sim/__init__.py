@@ -17,7 +17,13 @@ from app.sim.params import (
     LinkParams,
 )
 from app.sim.presets import PRESETS, Preset
-from app.sim.rollout import RolloutResult, SimulationDiverged, Trajectory, rollout
+from app.sim.rollout import (
+    RolloutResult,
+    SimulationDiverged,
+    Trajectory,
+    check_rollout,
+    rollout,
+)
 
 __all__ = [
     "PRESETS",
@@ -36,6 +42,7 @@ __all__ = [
     "Trajectory",
     "build_model",
     "build_spec",
+    "check_rollout",
     "export_xml",
     "rollout",
     "rollout_batch",

@@ -92,7 +92,13 @@ def confirm(trial_id: int, body: ConfirmIn, db: DbDep, actor: Operator) -> Trial
 @router.post("/trials/{trial_id}/run")
 def run(trial_id: int, db: DbDep, settings: SettingsDep, actor: Operator) -> TrialRead:
     """Simulate a queued sim trial in the service and record its result."""
-    return runs.run_trial(db, trial_id, actor=actor, artifacts_dir=settings.artifacts_dir)
+    return runs.run_trial(
+        db,
+        trial_id,
+        actor=actor,
+        artifacts_dir=settings.artifacts_dir,
+        lease_seconds=settings.lease_seconds,
+    )
 
 
 @router.post("/trials/{trial_id}/preview", status_code=202)
