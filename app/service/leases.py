@@ -23,7 +23,7 @@ from app.db.base import utcnow
 from app.db.models import Experiment, Lease, Trial
 from app.policy import N_CHAMBERS, Policy, PolicyError, schedule_hash
 from app.service import lifecycle as lc
-from app.service.artifacts import decode_npz_b64, store_trajectory
+from app.service.artifacts import store_trajectory
 from app.service.audit import record
 from app.service.auth import OPERATOR, Actor
 from app.service.errors import (
@@ -353,13 +353,15 @@ def report_result(
     actor: Actor,
     artifacts_dir: Path,
     max_attempts: int,
-    max_bytes: int,
+    trajectory: bytes | None = None,
 ) -> dict[str, Any]:
     """Record what a worker executed and measured under its lease (idempotent per lease).
 
     The executed schedule gives the executed θ the GP is fitted on. A fault sends a sim
     trial to failed and a hardware trial to needs_review; an executed schedule beyond the
     limits sends it to needs_review; otherwise an objective completes the trial.
+    ``trajectory``: the body's ``trajectory_npz_b64`` decoded and checked by
+    ``app.service.artifacts.decode_npz_b64`` before the write transaction began.
     """
     now = utcnow()
     sweep_expired(session, max_attempts=max_attempts, now=now)
@@ -393,9 +395,9 @@ def report_result(
         exec_release = None
     if body.objective is not None:
         check_value(body.objective, exp.objective_unit, exp.objective_unit, what="objective")
-    raw = None
-    if body.trajectory_npz_b64 is not None:
-        raw = decode_npz_b64(body.trajectory_npz_b64, max_bytes=max_bytes)
+    raw = trajectory
+    if body.trajectory_npz_b64 is not None and raw is None:
+        raise InvalidInput("the trajectory must be decoded (decode_npz_b64) before the lock")
     beyond = None
     try:
         check_schedule_safe(exp, exec_sched, exec_release)

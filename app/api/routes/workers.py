@@ -9,6 +9,7 @@ from fastapi.responses import Response
 
 from app.api.deps import DbDep, SettingsDep, WorkerOrOperator, json_response
 from app.service import leases
+from app.service.artifacts import decode_npz_b64
 from app.service.schemas import ClaimIn, ClaimRead, LeaseRead, ResultIn, ResultRead
 
 router = APIRouter(tags=["workers"])
@@ -52,6 +53,9 @@ def result(
     actor: WorkerOrOperator,
 ) -> dict[str, Any]:
     """Report what was executed and measured for a leased trial (idempotent per lease)."""
+    raw = None
+    if body.trajectory_npz_b64 is not None:  # unpacked and checked before taking the lock
+        raw = decode_npz_b64(body.trajectory_npz_b64, max_bytes=settings.max_body_bytes)
     with db.write() as session:
         return leases.report_result(
             session,
@@ -60,5 +64,5 @@ def result(
             actor=actor,
             artifacts_dir=settings.artifacts_dir,
             max_attempts=settings.max_attempts,
-            max_bytes=settings.max_body_bytes,
+            trajectory=raw,
         )
