@@ -6,7 +6,7 @@ import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Annotated, TypeVar
 
-from fastapi import Depends, Request
+from fastapi import Depends, Path, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
 from pydantic import BaseModel
@@ -73,6 +73,10 @@ async def run_write(db: Database, work: Callable[[Session], T]) -> T:
     return await run_in_threadpool(_write, db, work)
 
 
+MAX_ID = 2**63 - 1  # the largest id a database row can have (SQLite, PostgreSQL BIGINT)
+ExperimentId = Annotated[int, Path(ge=1, le=MAX_ID, description="an experiment's id")]
+TrialId = Annotated[int, Path(ge=1, le=MAX_ID, description="a trial's id")]
+
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 DbDep = Annotated[Database, Depends(get_db)]
 ReadSession = Annotated[Session, Depends(read_session)]
@@ -83,10 +87,7 @@ ANONYMOUS = Actor("anonymous", VIEWER)
 
 def _bearer(request: Request) -> str | None:
     header = request.headers.get("authorization")
-    if not header:
-        # EventSource (SSE) cannot send headers: the events stream may carry ?token=
-        if request.url.path.endswith("/events") and request.query_params.get("token"):
-            return request.query_params["token"]
+    if not header:  # tokens travel only in this header: never in a URL (access logs)
         return None
     scheme, _, token = header.partition(" ")
     if scheme.lower() != "bearer" or not token.strip():

@@ -10,11 +10,12 @@ from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager, suppress
 from importlib.metadata import PackageNotFoundError
 from importlib.metadata import version as _pkg_version
-from typing import Any
+from typing import Any, Literal
 
 from fastapi import FastAPI
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
+from pydantic import BaseModel
 from sqlalchemy import text
 
 from app.api import errors
@@ -111,6 +112,12 @@ def _warm_imports() -> None:
         log.warning("simulator unavailable: %s", exc)
 
 
+class HealthRead(BaseModel):
+    status: Literal["ok", "error"]
+    db: str
+    version: str
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the app over an already-migrated database (``handful serve`` migrates first).
 
@@ -136,9 +143,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
     errors.install(app)
     for module in (auth, experiments, trials, workers):
-        app.include_router(module.router, prefix="/api")
+        app.include_router(module.router, prefix="/api", responses=errors.ERROR_RESPONSES)
 
-    @app.get("/health", tags=["health"])
+    @app.get(
+        "/health",
+        tags=["health"],
+        response_model=HealthRead,
+        responses={503: {"model": HealthRead, "description": "The database does not answer"}},
+    )
     def health() -> JSONResponse:
         """Liveness and database check: ``{status, db, version}``."""
         try:

@@ -9,10 +9,10 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from app.db.models import AuditLog, Experiment, Trial
-from app.policy import schedule_hash
+from app.policy import N_CHAMBERS, schedule_hash
 
 TaskName = Literal["throw", "hammer", "tip_speed"]
 Target = Literal["sim", "hardware"]
@@ -22,7 +22,10 @@ Unit = Literal["m", "m/s", "N", "score"]
 
 
 class _In(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    """Input: unknown fields refused, finite numbers only, and strict types (a number is a
+    number: ``"0.5"`` or ``false`` for one is refused, not converted)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
 
 # --- experiments -----------------------------------------------------------------------------
@@ -421,6 +424,20 @@ class ResultIn(_In):
     trajectory_npz_b64: str | None = Field(None, description="np.savez bytes, base64")
     fault: str | None = Field(None, max_length=2000)
     summary: dict[str, Any] | None = Field(None, description="e.g. RolloutResult.to_summary()")
+
+    @field_validator("executed_pressure_schedule_pa")
+    @classmethod
+    def _rectangular(cls, rows: list[list[float]] | None) -> list[list[float]] | None:
+        if rows is None:
+            return None
+        if not rows or len(rows) > 1000:
+            raise ValueError(f"needs 1 to 1000 rows (control steps), got {len(rows)}")
+        for i, row in enumerate(rows):
+            if len(row) != N_CHAMBERS:
+                raise ValueError(
+                    f"row {i} has {len(row)} pressures; every row needs {N_CHAMBERS} (Pa)"
+                )
+        return rows
 
 
 class ResultRead(BaseModel):

@@ -321,3 +321,21 @@ def test_a_small_upload_of_a_huge_array_is_refused_before_the_lock(op, worker, m
     trial = op.get_trial(t["id"])
     assert trial["status"] == "running" and not trial["has_trajectory"]
     worker.report_result(t["id"], c["lease_id"], objective=1.0)  # the lease still holds
+
+
+def test_a_ragged_executed_schedule_is_422_and_the_lease_holds(op, worker, module_server):
+    import httpx
+
+    exp = new_exp(op)
+    [t] = op.suggest(exp["id"])
+    [c] = worker.claim("w", "sim")
+    ragged = [[0.0] * 12] * 9 + [[0.0] * 11]
+    r = httpx.post(
+        f"{module_server.url}/api/trials/{t['id']}/result",
+        json={"lease_id": c["lease_id"], "executed_pressure_schedule_pa": ragged},
+        headers={"Authorization": f"Bearer {module_server.tokens['worker']}"},
+        timeout=30,
+    )
+    assert r.status_code == 422 and "row 9 has 11 pressures" in r.text
+    assert op.get_trial(t["id"])["status"] == "running"
+    worker.report_result(t["id"], c["lease_id"], objective=1.0)

@@ -2,19 +2,14 @@
 
 from __future__ import annotations
 
-import asyncio
-import json
 import time
-from collections.abc import AsyncIterator
 from typing import Literal
 
-from fastapi import APIRouter, Query, Request, Response
-from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import PlainTextResponse, StreamingResponse
+from fastapi import APIRouter, Query, Response
+from fastapi.responses import PlainTextResponse
 
-from app.api.deps import DbDep, Operator, Reader, ReadSession
+from app.api.deps import DbDep, ExperimentId, Operator, Reader, ReadSession
 from app.service import data, experiments, trials
-from app.service.errors import NotFound
 from app.service.schemas import (
     AttachIn,
     AuditRead,
@@ -46,14 +41,14 @@ def list_experiments(session: ReadSession, _: Reader) -> list[ExperimentRead]:
 
 
 @router.get("/{experiment_id}")
-def get_experiment(experiment_id: int, session: ReadSession, _: Reader) -> ExperimentRead:
+def get_experiment(experiment_id: ExperimentId, session: ReadSession, _: Reader) -> ExperimentRead:
     """One experiment."""
     return experiments.read_experiment(session, experiment_id)
 
 
 @router.patch("/{experiment_id}")
 def patch_experiment(
-    experiment_id: int, body: ExperimentPatch, db: DbDep, actor: Operator
+    experiment_id: ExperimentId, body: ExperimentPatch, db: DbDep, actor: Operator
 ) -> ExperimentRead:
     """Change an experiment's status, notes or budget."""
     with db.write() as session:
@@ -62,7 +57,7 @@ def patch_experiment(
 
 @router.get("/{experiment_id}/trials")
 def list_trials(
-    experiment_id: int,
+    experiment_id: ExperimentId,
     session: ReadSession,
     _: Reader,
     status: str | None = Query(None, description="only trials in this status"),
@@ -73,7 +68,7 @@ def list_trials(
 
 @router.post("/{experiment_id}/suggest", status_code=201)
 def suggest(
-    experiment_id: int, body: SuggestIn, db: DbDep, actor: Operator, response: Response
+    experiment_id: ExperimentId, body: SuggestIn, db: DbDep, actor: Operator, response: Response
 ) -> list[TrialRead]:
     """Ask the optimiser (rebuilt from the database) for n new trials.
 
@@ -91,15 +86,29 @@ def suggest(
 
 
 @router.post("/{experiment_id}/trials", status_code=201)
-def attach_trial(experiment_id: int, body: AttachIn, db: DbDep, actor: Operator) -> TrialRead:
+def attach_trial(
+    experiment_id: ExperimentId, body: AttachIn, db: DbDep, actor: Operator
+) -> TrialRead:
     """Add a trial with a θ the operator chose."""
     with db.write() as session:
         return trials.attach(session, experiment_id, body.theta, note=body.note, actor=actor)
 
 
-@router.get("/{experiment_id}/export", response_model=None)
+@router.get(
+    "/{experiment_id}/export",
+    response_model=None,
+    responses={
+        200: {
+            "description": "JSON: everything; CSV: one row per trial",
+            "content": {
+                "application/json": {"schema": {"type": "object"}},
+                "text/csv": {"schema": {"type": "string"}},
+            },
+        }
+    },
+)
 def export(
-    experiment_id: int,
+    experiment_id: ExperimentId,
     session: ReadSession,
     _: Reader,
     format: Literal["csv", "json"] = "json",
@@ -119,7 +128,7 @@ def export(
 
 @router.post("/{experiment_id}/import", status_code=201)
 def import_observations(
-    experiment_id: int, body: ImportIn, db: DbDep, actor: Operator
+    experiment_id: ExperimentId, body: ImportIn, db: DbDep, actor: Operator
 ) -> list[TrialRead]:
     """Import past observations (θ, objective) as completed trials."""
     with db.write() as session:
@@ -127,54 +136,26 @@ def import_observations(
 
 
 @router.get("/{experiment_id}/model")
-def model(experiment_id: int, session: ReadSession, _: Reader) -> ModelRead:
+def model(experiment_id: ExperimentId, session: ReadSession, _: Reader) -> ModelRead:
     """The GP's lengthscales, the incumbent, and posterior slices through it."""
     return data.model_insight(session, experiment_id)
 
 
 @router.get("/{experiment_id}/audit")
 def audit(
-    experiment_id: int, session: ReadSession, _: Reader, limit: int = Query(500, ge=1, le=10_000)
+    experiment_id: ExperimentId,
+    session: ReadSession,
+    _: Reader,
+    limit: int = Query(500, ge=1, le=10_000),
 ) -> list[AuditRead]:
     """The experiment's audit log, newest first."""
     return experiments.audit_log(session, experiment_id, limit=limit)
 
 
 @router.get("/{experiment_id}/version")
-def version(experiment_id: int, session: ReadSession, _: Reader) -> VersionRead:
+def version(experiment_id: ExperimentId, session: ReadSession, _: Reader) -> VersionRead:
     """A counter that changes whenever anything in the experiment changes (cheap to poll)."""
     return VersionRead(
         experiment_id=experiment_id,
         version=experiments.experiment_version(session, experiment_id),
     )
-
-
-@router.get("/{experiment_id}/events")
-async def events(experiment_id: int, request: Request, db: DbDep, _: Reader) -> StreamingResponse:
-    """Server-sent events: ``data: {"version": n}`` each time the experiment changes."""
-
-    def current() -> int:
-        with db.read() as s:
-            return experiments.experiment_version(s, experiment_id)
-
-    first = await run_in_threadpool(current)  # NotFound before the stream starts
-
-    async def stream() -> AsyncIterator[str]:
-        last = first
-        yield f"data: {json.dumps({'version': last})}\n\n"
-        idle = 0.0
-        while not await request.is_disconnected():
-            await asyncio.sleep(0.5)
-            idle += 0.5
-            try:
-                v = await run_in_threadpool(current)
-            except NotFound:
-                return
-            if v != last:
-                last, idle = v, 0.0
-                yield f"data: {json.dumps({'version': v})}\n\n"
-            elif idle >= 15.0:
-                idle = 0.0
-                yield ": keep-alive\n\n"
-
-    return StreamingResponse(stream(), media_type="text/event-stream")

@@ -7,7 +7,7 @@ from typing import Any
 from fastapi import APIRouter
 from fastapi.responses import Response
 
-from app.api.deps import DbDep, SettingsDep, WorkerOrOperator, json_response
+from app.api.deps import DbDep, SettingsDep, TrialId, WorkerOrOperator, json_response
 from app.service import leases
 from app.service.artifacts import decode_npz_b64
 from app.service.schemas import ClaimIn, ClaimRead, LeaseRead, ResultIn, ResultRead
@@ -46,7 +46,7 @@ def heartbeat(
 
 @router.post("/trials/{trial_id}/result", response_model=ResultRead)
 def result(
-    trial_id: int,
+    trial_id: TrialId,
     body: ResultIn,
     db: DbDep,
     settings: SettingsDep,
