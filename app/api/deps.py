@@ -16,6 +16,7 @@ from app.config import Settings
 from app.db.session import Database
 from app.service import auth
 from app.service.auth import OPERATOR, VIEWER, WORKER, Actor
+from app.service.compute import ComputeRunner
 from app.service.errors import Forbidden, Unauthorized
 from app.service.runs import PreviewRunner
 
@@ -42,6 +43,10 @@ async def get_db(request: Request) -> Database:
 
 async def get_previews(request: Request) -> PreviewRunner:
     return request.app.state.previews
+
+
+async def get_compute(request: Request) -> ComputeRunner:
+    return request.app.state.compute
 
 
 async def read_session(db: Annotated[Database, Depends(get_db)]) -> AsyncIterator[Session]:
@@ -81,6 +86,7 @@ SettingsDep = Annotated[Settings, Depends(get_settings)]
 DbDep = Annotated[Database, Depends(get_db)]
 ReadSession = Annotated[Session, Depends(read_session)]
 PreviewsDep = Annotated[PreviewRunner, Depends(get_previews)]
+ComputeDep = Annotated[ComputeRunner, Depends(get_compute)]
 
 ANONYMOUS = Actor("anonymous", VIEWER)
 

@@ -111,6 +111,8 @@ def install(app: FastAPI) -> None:
         if isinstance(exc, DuplicateRequest) and exc.receipt is not None:
             body["receipt"] = exc.receipt
         headers = {"WWW-Authenticate": "Bearer"} if exc.status_code == 401 else None
+        if exc.status_code in (429, 503):
+            headers = {"Retry-After": str(getattr(exc, "retry_after_s", 1))}
         return JSONResponse(body, status_code=exc.status_code, headers=headers)
 
     @app.exception_handler(StarletteHTTPException)

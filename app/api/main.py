@@ -23,6 +23,7 @@ from app.api.limits import BodySizeLimit
 from app.api.routes import auth, experiments, trials, workers
 from app.config import Settings
 from app.db.session import Database
+from app.service.compute import ComputeRunner
 from app.service.leases import grant_restart_grace, sweep_expired
 from app.service.runs import PreviewRunner
 
@@ -80,6 +81,7 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
         )
     for hook in list(app.state.startup_hooks):
         await _call(hook, app)
+    app.state.compute.warm()
     # Everything loaded so far (torch, BoTorch, MuJoCo, the app) lives as long as the server:
     # move it out of the collector's generations, so that full collections during requests
     # only walk what requests allocate.
@@ -98,6 +100,7 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
             except Exception:
                 log.exception("shutdown hook %r failed", hook)
         app.state.previews.shutdown()
+        app.state.compute.shutdown()
         app.state.db.dispose()
 
 
@@ -137,6 +140,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.db = Database(settings.db_url, sqlite_synchronous=settings.sqlite_synchronous)
     app.state.previews = PreviewRunner(settings.preview.workers, settings.preview.max_jobs)
+    app.state.compute = ComputeRunner(settings.compute_workers, settings.suggest_timeout_s)
     app.state.token_cache = {}
     app.state.startup_hooks = []
     app.state.shutdown_hooks = []

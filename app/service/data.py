@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -142,11 +143,18 @@ def import_observations(
     return [TrialRead.build(t, has_trajectory=False) for t in out]
 
 
-def model_insight(session: Session, experiment_id: int, *, n_points: int = 41) -> ModelRead:
-    """Lengthscales, the incumbent and 1-D posterior slices through it (one per θ dim)."""
-    from app.optim import OptimError
-    from app.service.trials import build_optimizer
+def model_insight(
+    session: Session,
+    experiment_id: int,
+    *,
+    n_points: int = 41,
+    viewer: Callable[[Any, list[float], int], dict[str, Any]] | None = None,
+) -> ModelRead:
+    """Lengthscales, the incumbent and 1-D posterior slices through it (one per θ dim).
 
+    ``viewer(inputs, incumbent, n_points) -> model_view's dict`` fits or reuses the model
+    (the server passes ``ComputeRunner``'s, which reuses the suggestion's fit); by default
+    the optimiser is rebuilt here."""
     exp = get_experiment(session, experiment_id)
     inputs = optimizer_inputs(session, exp)
     obs = inputs.observations
@@ -171,25 +179,36 @@ def model_insight(session: Session, experiment_id: int, *, n_points: int = 41) -
         .order_by(Trial.objective.desc(), Trial.index)
     ).first()
     assert best is not None
-    inc = list(best.executed_theta if best.executed_theta is not None else best.theta)
+    theta = best.executed_theta if best.executed_theta is not None else best.theta
+    inc = [float(v) for v in theta]
     head = dict(
         base, incumbent_theta=inc, incumbent_objective=best.objective, incumbent_trial_id=best.id
     )
-    opt = build_optimizer(inputs)
+    if viewer is None:
+        from app.service.trials import build_optimizer
+
+        view = model_view(build_optimizer(inputs), inputs, inc, n_points)
+    else:
+        view = viewer(inputs, inc, n_points)
+    return ModelRead(**head, **view)
+
+
+def model_view(opt: Any, inputs: Any, incumbent: list[float], n_points: int) -> dict[str, Any]:
+    """``{lengthscales, slices, message}`` of a fitted optimiser (the CPU-heavy part of
+    ``model_insight``, run where the optimiser is)."""
+    from app.optim import OptimError
+
+    none: dict[str, Any] = {"lengthscales": None, "slices": []}
     if not hasattr(opt, "predict"):
-        return ModelRead(
-            **head, lengthscales=None, slices=[], message=f"{exp.method} has no surrogate model"
-        )
-    if len(obs) < 2:
-        return ModelRead(
-            **head, lengthscales=None, slices=[], message="the GP needs at least 2 observations"
-        )
+        return {**none, "message": f"{inputs.method} has no surrogate model"}
+    if len(inputs.observations) < 2:
+        return {**none, "message": "the GP needs at least 2 observations"}
     try:
         ls = [float(v) for v in opt.lengthscales()]
         grid = np.linspace(0.0, 1.0, n_points)
         slices = []
         for d in range(inputs.dim):
-            pts = np.tile(np.asarray(inc, dtype=np.float64), (n_points, 1))
+            pts = np.tile(np.asarray(incumbent, dtype=np.float64), (n_points, 1))
             pts[:, d] = grid
             mean, std = opt.predict(pts)
             slices.append(
@@ -201,8 +220,8 @@ def model_insight(session: Session, experiment_id: int, *, n_points: int = 41) -
                 )
             )
     except (OptimError, ValueError, RuntimeError) as exc:
-        return ModelRead(**head, lengthscales=None, slices=[], message=f"model unavailable: {exc}")
-    return ModelRead(**head, lengthscales=ls, slices=slices)
+        return {"lengthscales": None, "slices": [], "message": f"model unavailable: {exc}"}
+    return {"lengthscales": ls, "slices": slices, "message": ""}
 
 
 def _finite(v: float) -> float:

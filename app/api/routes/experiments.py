@@ -2,13 +2,26 @@
 
 from __future__ import annotations
 
+import asyncio
+import threading
 import time
-from typing import Literal
+from collections.abc import Callable
+from typing import Any, Literal, TypeVar
 
-from fastapi import APIRouter, Query, Response
+from fastapi import APIRouter, Query, Request, Response
+from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import PlainTextResponse
 
-from app.api.deps import DbDep, ExperimentId, Operator, Reader, ReadSession
+from app.api.deps import (
+    ComputeDep,
+    DbDep,
+    ExperimentId,
+    Operator,
+    Reader,
+    ReadSession,
+    json_response,
+)
+from app.service import compute as compute_jobs
 from app.service import data, experiments, trials
 from app.service.schemas import (
     AttachIn,
@@ -24,6 +37,7 @@ from app.service.schemas import (
 )
 
 router = APIRouter(prefix="/experiments", tags=["experiments"])
+T = TypeVar("T")
 
 
 @router.post("", status_code=201)
@@ -66,23 +80,58 @@ def list_trials(
     return trials.list_trials(session, experiment_id, status=status)
 
 
-@router.post("/{experiment_id}/suggest", status_code=201)
-def suggest(
-    experiment_id: ExperimentId, body: SuggestIn, db: DbDep, actor: Operator, response: Response
-) -> list[TrialRead]:
+async def _while_connected(request: Request, work: Callable[[threading.Event], T]) -> T:
+    """``work(cancelled)`` in the threadpool; ``cancelled`` is set if the client leaves."""
+    cancelled = threading.Event()
+    task = asyncio.ensure_future(run_in_threadpool(work, cancelled))
+    try:
+        while True:
+            done, _ = await asyncio.wait({task}, timeout=0.25)
+            if done:
+                return task.result()
+            if await request.is_disconnected():
+                cancelled.set()
+    finally:
+        if not task.done():
+            cancelled.set()
+
+
+@router.post("/{experiment_id}/suggest", status_code=201, response_model=list[TrialRead])
+async def suggest(
+    experiment_id: ExperimentId,
+    body: SuggestIn,
+    db: DbDep,
+    compute: ComputeDep,
+    actor: Operator,
+    request: Request,
+) -> Response:
     """Ask the optimiser (rebuilt from the database) for n new trials.
 
-    The ``Server-Timing`` header gives the optimiser's share (``optimizer``) and the whole
+    The optimiser runs in a compute process within ``HANDFUL_SUGGEST_TIMEOUT_S`` (past it:
+    503 ``compute_timeout``, nothing stored) and is stopped if the client leaves. The
+    ``Server-Timing`` header gives the optimiser's share (``optimizer``) and the whole
     suggestion (``total``) in ms, so clients can tell the service's overhead from the GP's.
     """
-    timings: dict[str, float] = {}
+
+    def work(cancelled: threading.Event) -> tuple[list[TrialRead], dict[str, float]]:
+        timings: dict[str, float] = {}
+
+        def asker(inputs: Any, n: int) -> Any:
+            return compute.call(
+                compute_jobs.suggest_job, inputs, n, shard=experiment_id, cancelled=cancelled
+            )
+
+        out = trials.suggest(db, experiment_id, body.n, actor=actor, timings=timings, asker=asker)
+        return out, timings
+
     t0 = time.perf_counter()
-    out = trials.suggest(db, experiment_id, body.n, actor=actor, timings=timings)
+    out, timings = await _while_connected(request, work)
     total_ms = (time.perf_counter() - t0) * 1e3
+    response = json_response(out, status_code=201)
     response.headers["Server-Timing"] = (
         f"optimizer;dur={timings.get('optimizer_s', 0.0) * 1e3:.3f}, total;dur={total_ms:.3f}"
     )
-    return out
+    return response
 
 
 @router.post("/{experiment_id}/trials", status_code=201)
@@ -135,10 +184,37 @@ def import_observations(
         return data.import_observations(session, experiment_id, body, actor=actor)
 
 
-@router.get("/{experiment_id}/model")
-def model(experiment_id: ExperimentId, session: ReadSession, _: Reader) -> ModelRead:
-    """The GP's lengthscales, the incumbent, and posterior slices through it."""
-    return data.model_insight(session, experiment_id)
+@router.get("/{experiment_id}/model", response_model=ModelRead)
+async def model(
+    experiment_id: ExperimentId, db: DbDep, compute: ComputeDep, _: Reader, request: Request
+) -> Response:
+    """The GP's lengthscales, the incumbent, and posterior slices through it.
+
+    Reuses the fit of the experiment's last suggestion on the same observations
+    (``X-Model-Cache: hit``); else fits it once in a compute process (``miss``), bounded
+    like a suggestion."""
+    cache = {"hit": False}
+
+    def work(cancelled: threading.Event) -> ModelRead:
+        def viewer(inputs: Any, incumbent: list[float], n_points: int) -> dict[str, Any]:
+            view, cache["hit"] = compute.call(
+                compute_jobs.model_job,
+                inputs,
+                incumbent,
+                n_points,
+                shard=experiment_id,
+                cancelled=cancelled,
+                what="the GP fit",
+            )
+            return view
+
+        with db.read() as session:
+            return data.model_insight(session, experiment_id, viewer=viewer)
+
+    out = await _while_connected(request, work)
+    response = json_response(out)
+    response.headers["X-Model-Cache"] = "hit" if cache["hit"] else "miss"
+    return response
 
 
 @router.get("/{experiment_id}/audit")
