@@ -44,6 +44,12 @@ class Settings(BaseSettings):
     max_attempts: int = Field(3, ge=1, description="claims of one sim trial before `failed`")
     max_body_bytes: int = Field(16 * 1024 * 1024, ge=1024, description="largest request body")
     preview: PreviewSettings = Field(default_factory=PreviewSettings)
+    db_busy_timeout_s: float = Field(
+        5.0,
+        gt=0,
+        le=300,
+        description="a write waits this long for the database, then 503 database_busy",
+    )
     suggest_timeout_s: float = Field(
         120.0, gt=0, le=3600, description="a suggestion's (or GP view's) time budget; then 503"
     )

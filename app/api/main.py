@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-import gc
 import inspect
 import logging
 from collections.abc import AsyncIterator, Callable
@@ -82,11 +81,6 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
     for hook in list(app.state.startup_hooks):
         await _call(hook, app)
     app.state.compute.warm()
-    # Everything loaded so far (torch, BoTorch, MuJoCo, the app) lives as long as the server:
-    # move it out of the collector's generations, so that full collections during requests
-    # only walk what requests allocate.
-    gc.collect()
-    gc.freeze()
     sweeper = asyncio.create_task(_sweep_forever(app))
     try:
         yield
@@ -138,7 +132,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lifespan=_lifespan,
     )
     app.state.settings = settings
-    app.state.db = Database(settings.db_url, sqlite_synchronous=settings.sqlite_synchronous)
+    app.state.db = Database(
+        settings.db_url,
+        sqlite_synchronous=settings.sqlite_synchronous,
+        busy_timeout_s=settings.db_busy_timeout_s,
+    )
     app.state.previews = PreviewRunner(settings.preview.workers, settings.preview.max_jobs)
     app.state.compute = ComputeRunner(settings.compute_workers, settings.suggest_timeout_s)
     app.state.token_cache = {}

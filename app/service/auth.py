@@ -68,7 +68,9 @@ def add_user(
     password: str | None = None,
     actor: Actor = SYSTEM,
 ) -> User:
-    """Create a user (committed). Raises InvalidInput for a bad name/role, Conflict if taken."""
+    """Create a user (flushed; the caller's ``Database.write`` commits).
+
+    Raises InvalidInput for a bad name/role, Conflict if taken."""
     if not _USERNAME.match(username):
         raise InvalidInput(f"username {username!r}: use 1-64 letters, digits or _ . @ -")
     if role not in ROLES:
@@ -93,12 +95,13 @@ def add_user(
         after=role,
         detail={"username": username},
     )
-    session.commit()
+    session.flush()
     return user
 
 
 def create_token(session: Session, username: str, *, label: str = "", actor: Actor = SYSTEM) -> str:
-    """Issue a new random token for ``username`` (committed); returns the plain token once."""
+    """Issue a new random token for ``username``; returns the plain token once (flushed;
+    ``Database.write`` commits)."""
     user = session.scalar(select(User).where(User.username == username))
     if user is None:
         raise NotFound(f"no user named {username!r}")
@@ -112,7 +115,7 @@ def create_token(session: Session, username: str, *, label: str = "", actor: Act
         entity_id=user.id,
         detail={"username": username, "label": label[:64]},
     )
-    session.commit()
+    session.flush()
     return token
 
 
@@ -148,7 +151,8 @@ def authenticate(session: Session, token: str) -> Actor:
 
 
 def revoke_tokens(session: Session, username: str, *, actor: Actor = SYSTEM) -> int:
-    """Revoke every token of ``username`` (committed); returns how many."""
+    """Revoke every token of ``username``; returns how many (flushed; ``Database.write``
+    commits)."""
     user = session.scalar(select(User).where(User.username == username))
     if user is None:
         raise NotFound(f"no user named {username!r}")
@@ -166,5 +170,5 @@ def revoke_tokens(session: Session, username: str, *, actor: Actor = SYSTEM) -> 
         entity_id=user.id,
         detail={"username": username, "count": n},
     )
-    session.commit()
+    session.flush()
     return n

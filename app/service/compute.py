@@ -103,6 +103,16 @@ def model_job(inputs: Any, incumbent: list[float], n_points: int) -> tuple[dict[
     return model_view(opt, inputs, incumbent, n_points), hit
 
 
+#: methods whose work grows at most linearly with the observations: run in the caller's
+#: thread (no process hop, no start-up wait), never near a time budget
+INLINE_METHODS = frozenset({"random", "cem"})
+
+
+def inline(inputs: Any) -> bool:
+    """Whether this optimiser's work is cheap enough to run in the request's own thread."""
+    return inputs.method in INLINE_METHODS
+
+
 def _warm() -> None:
     import app.optim  # noqa: F401  (torch and BoTorch, imported once per process)
 
@@ -165,10 +175,14 @@ class ComputeRunner:
         shard: int = 0,
         cancelled: threading.Event | None = None,
         what: str = "the optimiser",
+        in_thread: bool = False,
     ) -> T:
         """``fn(*args)`` in the compute process of ``shard``; ComputeTimeout past
         ``timeout_s``, ComputeCancelled once ``cancelled`` is set (the process is killed
-        either way, and a fresh one started)."""
+        either way, and a fresh one started). ``in_thread``: just call it here (cheap work,
+        see ``inline``)."""
+        if in_thread:
+            return fn(*args)
         slot = shard % self.workers
         pool = self._get_pool(slot)
         self._wait_started(slot, cancelled)

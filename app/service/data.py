@@ -139,7 +139,7 @@ def import_observations(
         )
         out.append(trial)
     touch(exp)
-    session.commit()
+    session.flush()
     return [TrialRead.build(t, has_trajectory=False) for t in out]
 
 

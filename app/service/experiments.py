@@ -87,7 +87,7 @@ def optimizer_kwargs(exp: Experiment) -> dict[str, Any]:
 
 
 def create_experiment(session: Session, spec: ExperimentCreate, *, actor: Actor) -> Experiment:
-    """Validate and store a new experiment (committed)."""
+    """Validate and store a new experiment (flushed; the caller's ``Database.write`` commits)."""
     from app.optim import METHODS, OptimError, make_optimizer
 
     with_release = spec.with_release if spec.with_release is not None else spec.task == "throw"
@@ -157,7 +157,7 @@ def create_experiment(session: Session, spec: ExperimentCreate, *, actor: Actor)
         after="active",
         detail={"name": exp.name, "task": exp.task, "target": exp.target},
     )
-    session.commit()
+    session.flush()
     return exp
 
 
@@ -222,7 +222,7 @@ def list_experiments(session: Session) -> list[ExperimentRead]:
 def patch_experiment(
     session: Session, experiment_id: int, patch: ExperimentPatch, *, actor: Actor
 ) -> ExperimentRead:
-    """Change status / notes / budget (committed, audited)."""
+    """Change status / notes / budget (audited; ``Database.write`` commits)."""
     exp = get_experiment(session, experiment_id)
     changes = patch.model_dump(exclude_unset=True)
     for field, value in changes.items():
@@ -243,7 +243,7 @@ def patch_experiment(
             after=None if value is None else str(value)[:2000],
         )
     touch(exp)
-    session.commit()
+    session.flush()
     return read_experiment(session, exp.id)
 
 

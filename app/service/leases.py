@@ -295,7 +295,7 @@ def claim(
                 lease_expires_at=lease.expires_at,
             )
         )
-    session.commit()
+    session.flush()
     return out
 
 
@@ -320,16 +320,16 @@ def _lost(lease: Lease, trial: Trial | None) -> LeaseLost:
 def heartbeat(
     session: Session, lease_id: str, *, actor: Actor, lease_seconds: float, max_attempts: int
 ) -> LeaseRead:
-    """Extend an active lease by ``lease_seconds`` (committed). LeaseLost if it expired."""
+    """Extend an active lease by ``lease_seconds``. LeaseLost if it expired (what the sweep
+    did is kept: LeaseLost keeps the transaction's changes)."""
     now = utcnow()
     sweep_expired(session, max_attempts=max_attempts, now=now)
     lease = _get_lease(session, lease_id, actor)
     if lease.status != "active":
-        session.commit()  # keep what the sweep did
         raise _lost(lease, session.get(Trial, lease.trial_id))
     lease.heartbeat_at = now
     lease.expires_at = now + timedelta(seconds=lease_seconds)
-    session.commit()
+    session.flush()
     return LeaseRead(
         lease_id=lease.id,
         trial_id=lease.trial_id,
@@ -371,14 +371,13 @@ def report_result(
     digest = _result_sha256(trial_id, body)
     if lease.status == "completed":
         if lease.result_sha256 == digest and lease.result_response is not None:
-            session.commit()
+            session.flush()
             return dict(lease.result_response)
         raise DuplicateRequest(
             f"lease {lease.id} already has a different result recorded; nothing stored again"
         )
     trial = session.get(Trial, trial_id, with_for_update=True)
     if lease.status != "active" or trial is None:
-        session.commit()
         raise _lost(lease, trial)
     exp = trial.experiment
     policy = policy_of(exp)
@@ -454,5 +453,5 @@ def report_result(
     lease.result_sha256 = digest
     lease.result_response = response
     touch(exp)
-    session.commit()
+    session.flush()
     return response

@@ -218,7 +218,7 @@ def add_measurements(
     idempotency_key: str | None,
     actor: Actor,
 ) -> MeasurementReceipt:
-    """Record an operator's repeats for a trial, once per Idempotency-Key (committed).
+    """Record an operator's repeats for a trial, once per Idempotency-Key.
 
     A queued or running trial without a worker's lease becomes completed; a completed one
     gets its objective recomputed; a needs_review one keeps its status (a person decides).
@@ -277,5 +277,4 @@ def add_measurements(
         _check_key_unused(session.connection(), idempotency_key, digest)
         raise
     touch_id(session, trial.experiment_id, connection=db)
-    session.commit()  # one commit; a flush only when the status changed
     return receipt

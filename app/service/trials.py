@@ -343,7 +343,7 @@ def suggest(
 def attach(
     session: Session, experiment_id: int, theta: list[float], *, note: str, actor: Actor
 ) -> TrialRead:
-    """Add a trial with an operator-chosen θ (checked like any other), committed."""
+    """Add a trial with an operator-chosen θ (checked like any other)."""
     exp = get_experiment(session, experiment_id, for_update=True)
     _check_can_add(session, exp, 1)
     predicted = None
@@ -358,7 +358,7 @@ def attach(
         predicted=predicted,
     )
     touch(exp)
-    session.commit()
+    session.flush()
     return TrialRead.build(trial, has_trajectory=False)
 
 
@@ -406,7 +406,7 @@ def _end_by_operator(
         _end_lease(session, trial, "revoked", actor=actor, why=f"trial {status}: {reason}")
     touch(trial.experiment)
     out = TrialRead.build(trial)
-    session.commit()
+    session.flush()
     return out
 
 
@@ -462,7 +462,7 @@ def resolve(session: Session, trial_id: int, body: ResolveIn, *, actor: Actor) -
     )
     touch(exp)
     out = TrialRead.build(trial)
-    session.commit()
+    session.flush()
     return out
 
 
@@ -505,5 +505,5 @@ def confirm(session: Session, trial_id: int, given_hash: str, *, actor: Actor) -
     )
     touch(exp)
     out = TrialRead.build(trial)
-    session.commit()
+    session.flush()
     return out

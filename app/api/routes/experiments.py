@@ -118,7 +118,12 @@ async def suggest(
 
         def asker(inputs: Any, n: int) -> Any:
             return compute.call(
-                compute_jobs.suggest_job, inputs, n, shard=experiment_id, cancelled=cancelled
+                compute_jobs.suggest_job,
+                inputs,
+                n,
+                shard=experiment_id,
+                cancelled=cancelled,
+                in_thread=compute_jobs.inline(inputs),
             )
 
         out = trials.suggest(db, experiment_id, body.n, actor=actor, timings=timings, asker=asker)
@@ -205,6 +210,7 @@ async def model(
                 shard=experiment_id,
                 cancelled=cancelled,
                 what="the GP fit",
+                in_thread=compute_jobs.inline(inputs),
             )
             return view
 

@@ -16,7 +16,6 @@ from app.api.deps import (
     SettingsDep,
     TrialId,
     json_response,
-    run_write,
 )
 from app.service import artifacts, measurements, runs, trials
 from app.service.schemas import (
@@ -40,7 +39,7 @@ def get_trial(trial_id: TrialId, session: ReadSession, _: Reader) -> Response:
 
 
 @router.post("/trials/{trial_id}/measurements", status_code=201, response_model=MeasurementReceipt)
-async def add_measurements(
+def add_measurements(
     trial_id: TrialId,
     body: MeasurementsIn,
     db: DbDep,
@@ -53,12 +52,10 @@ async def add_measurements(
     every repeat and its audit trail, is ``GET /trials/{id}``). A replayed post (same key,
     same body) is a 409 ``duplicate_request`` carrying the first post's ``receipt``.
     """
-    receipt = await run_write(
-        db,
-        lambda s: measurements.add_measurements(
-            s, trial_id, body, idempotency_key=idempotency_key, actor=actor
-        ),
-    )
+    with db.write() as session:
+        receipt = measurements.add_measurements(
+            session, trial_id, body, idempotency_key=idempotency_key, actor=actor
+        )
     return json_response(receipt, status_code=201)
 
 
