@@ -181,6 +181,12 @@ class HandfulClient:
         """``{status, db, version}``."""
         return self.request("GET", "/health")
 
+    def rotate_token(self) -> JSON:
+        """Swap this client's token for a new one (the old one is revoked at once)."""
+        out = self.request("POST", "/api/auth/rotate")
+        self.token = out["token"]
+        return out
+
     def login(self, username: str, password: str) -> JSON:
         """Log in; the client then uses the returned token."""
         out = self.request(

@@ -22,6 +22,7 @@ from app.api.limits import BodySizeLimit
 from app.api.routes import auth, experiments, trials, workers
 from app.config import Settings
 from app.db.session import Database
+from app.service.auth import LoginLimiter
 from app.service.compute import ComputeRunner
 from app.service.leases import grant_restart_grace, sweep_expired
 from app.service.runs import PreviewRunner
@@ -139,7 +140,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.previews = PreviewRunner(settings.preview.workers, settings.preview.max_jobs)
     app.state.compute = ComputeRunner(settings.compute_workers, settings.suggest_timeout_s)
-    app.state.token_cache = {}
+    app.state.login_limiter = LoginLimiter(settings.login_max_failures, settings.login_window_s)
     app.state.startup_hooks = []
     app.state.shutdown_hooks = []
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
