@@ -18,7 +18,7 @@ from pydantic import BaseModel
 from sqlalchemy import text
 
 from app.api import errors
-from app.api.limits import BodySizeLimit
+from app.api.limits import BodySizeLimit, SecurityHeaders
 from app.api.routes import auth, experiments, trials, workers
 from app.config import Settings
 from app.db.session import Database
@@ -144,6 +144,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.startup_hooks = []
     app.state.shutdown_hooks = []
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
+    app.add_middleware(SecurityHeaders)
     errors.install(app)
     for module in (auth, experiments, trials, workers):
         app.include_router(module.router, prefix="/api", responses=errors.ERROR_RESPONSES)

@@ -21,6 +21,7 @@ from sqlalchemy import Engine, create_engine, event
 from sqlalchemy.orm import Session, sessionmaker
 from sqlalchemy.pool import QueuePool
 
+from app.db.migrate import owner_only
 from app.db.models import AuditLog
 
 _BEGIN_OPTION = "handful_sqlite_begin"
@@ -97,6 +98,7 @@ class Database:
         self, url: str, *, sqlite_synchronous: str = "FULL", busy_timeout_s: float = BUSY_TIMEOUT_S
     ) -> None:
         self.url = url
+        owner_only(url)  # an older data folder's world-readable file, too
         opts: dict[str, Any] = {
             "sqlite_synchronous": sqlite_synchronous,
             "busy_timeout_s": busy_timeout_s,

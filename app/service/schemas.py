@@ -6,10 +6,11 @@
 
 from __future__ import annotations
 
+import re
 from datetime import datetime
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
 
 from app.db.models import AuditLog, Experiment, Trial
 from app.policy import N_CHAMBERS, schedule_hash
@@ -21,11 +22,29 @@ Acquisition = Literal["logei", "ucb", "qlognei"]
 Unit = Literal["m", "m/s", "N", "score"]
 
 
+# Control characters other than tab and newlines (NUL first: PostgreSQL cannot store it), and
+# in names the invisible marks that reorder text on screen (bidi controls).
+_CONTROL = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
+_BIDI = re.compile("[\u200e\u200f\u061c\u202a-\u202e\u2066-\u2069]")
+_NAMES = frozenset({"name", "username", "worker_id", "unit", "sim_preset", "method"})
+
+
 class _In(BaseModel):
-    """Input: unknown fields refused, finite numbers only, and strict types (a number is a
-    number: ``"0.5"`` or ``false`` for one is refused, not converted)."""
+    """Input: unknown fields refused, finite numbers only, strict types (a number is a
+    number: ``"0.5"`` or ``false`` for one is refused, not converted), and text without
+    control characters (names without bidi controls either)."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
+
+    @field_validator("*", mode="after")
+    @classmethod
+    def _clean_text(cls, value: Any, info: ValidationInfo) -> Any:
+        if isinstance(value, str) and info.field_name != "password":
+            if _CONTROL.search(value):
+                raise ValueError("control characters (such as NUL) are not allowed")
+            if info.field_name in _NAMES and _BIDI.search(value):
+                raise ValueError("bidirectional-text control characters are not allowed")
+        return value
 
 
 # --- experiments -----------------------------------------------------------------------------
