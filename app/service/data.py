@@ -70,8 +70,13 @@ CSV_FIELDS = (
 )
 
 
+#: after θ: who made the trial, who confirmed it (hardware) and when, and every raw repeat
+CSV_TAIL = ("created_by", "confirmed_by", "confirmed_at", "repeats")
+
+
 def export_csv(session: Session, experiment_id: int) -> str:
-    """One row per trial: index, status, objective, SEM, θ (planned and executed), times."""
+    """One row per trial: index, status, objective, SEM, θ (planned and executed), times;
+    then who made and confirmed it, and its raw repeats (``value unit by who; ...``)."""
     exp = get_experiment(session, experiment_id)
     dim = exp.horizon + int(exp.with_release)
     trials = list_trials(session, experiment_id)
@@ -82,13 +87,31 @@ def export_csv(session: Session, experiment_id: int) -> str:
             *CSV_FIELDS,
             *(f"theta_{i}" for i in range(dim)),
             *(f"executed_theta_{i}" for i in range(dim)),
+            *CSV_TAIL,
         ]
     )
+    repeats: dict[int, list[str]] = {}
+    for m in session.scalars(
+        select(Measurement)
+        .join(Trial, Measurement.trial_id == Trial.id)
+        .where(Trial.experiment_id == experiment_id)
+        .order_by(Measurement.id)
+    ):
+        repeats.setdefault(m.trial_id, []).append(f"{m.value!r} {m.unit} by {m.created_by}")
     for t in trials:
         d = t.model_dump(mode="json")
         row = ["" if d[f] is None else d[f] for f in CSV_FIELDS]
         ex = t.executed_theta or [""] * dim
-        w.writerow([*row, *(repr(v) for v in t.theta), *(v if v == "" else repr(v) for v in ex)])
+        tail = ["" if d[f] is None else d[f] for f in CSV_TAIL[:-1]]
+        w.writerow(
+            [
+                *row,
+                *(repr(v) for v in t.theta),
+                *(v if v == "" else repr(v) for v in ex),
+                *tail,
+                "; ".join(repeats.get(t.id, [])),
+            ]
+        )
     return buf.getvalue()
 
 

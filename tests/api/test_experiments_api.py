@@ -189,11 +189,15 @@ def test_export_csv_and_json(api):
     rows = list(csv.DictReader(io.StringIO(api.export(exp["id"], "csv"))))
     assert [r["status"] for r in rows] == ["completed", "queued"]
     assert float(rows[0]["objective"]) == 1.25 and float(rows[0]["theta_0"]) == 0.3
+    assert rows[0]["created_by"] == "operator" and rows[0]["repeats"] == "1.25 m/s by operator"
     data = api.export(exp["id"], "json")
     assert data["experiment"]["id"] == exp["id"]
     assert len(data["trials"]) == 2 and len(data["measurements"]) == 1
     err = error_of(api.export, exp["id"], "xml")
     assert err.status == 422
+    everything = api.export(exp["id"], "bundle")  # trajectories and the audit log too
+    assert everything["format"] == "handful-experiment-bundle"
+    assert {"trial.import", "experiment.create"} <= {a["action"] for a in everything["audit"]}
 
 
 def test_version_changes_on_every_change(api):

@@ -19,10 +19,11 @@ from app.api.deps import (
     Operator,
     Reader,
     ReadSession,
+    SettingsDep,
     json_response,
 )
+from app.service import bundle, data, experiments, trials
 from app.service import compute as compute_jobs
-from app.service import data, experiments, trials
 from app.service.schemas import (
     AttachIn,
     AuditRead,
@@ -153,7 +154,8 @@ def attach_trial(
     response_model=None,
     responses={
         200: {
-            "description": "JSON: everything; CSV: one row per trial",
+            "description": "JSON: trials and measurements; bundle: everything (trajectories "
+            "and audit log too, what `handful import` reads); CSV: one row per trial",
             "content": {
                 "application/json": {"schema": {"type": "object"}},
                 "text/csv": {"schema": {"type": "string"}},
@@ -165,9 +167,13 @@ def export(
     experiment_id: ExperimentId,
     session: ReadSession,
     _: Reader,
-    format: Literal["csv", "json"] = "json",
+    settings: SettingsDep,
+    format: Literal["csv", "json", "bundle"] = "json",
 ) -> PlainTextResponse | dict:
-    """The experiment's trials (CSV: one row per trial) or everything (JSON)."""
+    """The experiment's trials (CSV: one row per trial, who and raw repeats included), its
+    trials and measurements (JSON), or everything, trajectories and audit log too (bundle)."""
+    if format == "bundle":
+        return bundle.export_bundle(session, experiment_id, settings.artifacts_dir)
     if format == "csv":
         text = data.export_csv(session, experiment_id)
         return PlainTextResponse(
