@@ -12,10 +12,9 @@ from sqlalchemy.orm import Session
 
 from app.db.base import utcnow
 from app.db.models import AuditLog
-from app.db.prepared import Prepared
 
 # Built once: constructing a statement costs more than running it on SQLite.
-_INSERT = Prepared(insert(AuditLog.__table__))
+_INSERT = insert(AuditLog.__table__)
 
 
 def json_safe(value: Any) -> Any:
@@ -50,8 +49,8 @@ def record(
     ``session``: the caller's Session, or the Connection it holds.
     """
     conn = session.connection() if isinstance(session, Session) else session
-    _INSERT.execute(
-        conn,
+    conn.execute(
+        _INSERT,
         {
             "at": now or utcnow(),
             "actor": actor,

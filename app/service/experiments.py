@@ -11,7 +11,6 @@ from sqlalchemy.orm import Session
 
 from app.db.base import utcnow
 from app.db.models import AuditLog, Experiment, Trial
-from app.db.prepared import Prepared
 from app.policy import Policy, PolicyError, PressureLimits
 from app.service.audit import record
 from app.service.auth import Actor
@@ -50,7 +49,7 @@ def touch(exp: Experiment) -> None:
     exp.updated_at = utcnow()
 
 
-_TOUCH = Prepared(
+_TOUCH = (
     update(Experiment.__table__)
     .where(Experiment.__table__.c.id == bindparam("experiment_id"))
     .values(version=Experiment.__table__.c.version + 1, updated_at=bindparam("now"))
@@ -66,7 +65,7 @@ def touch_id(session: Session, experiment_id: int, *, connection: Connection | N
         touch(session.identity_map[key])
         return
     conn = connection or session.connection()
-    _TOUCH.execute(conn, {"experiment_id": experiment_id, "now": utcnow()})
+    conn.execute(_TOUCH, {"experiment_id": experiment_id, "now": utcnow()})
 
 
 def optimizer_kwargs(exp: Experiment) -> dict[str, Any]:
