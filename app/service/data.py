@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -72,9 +73,14 @@ CSV_FIELDS = (
 )
 
 
+#: after θ: who made the trial, who confirmed it (hardware) and when, and every raw repeat
+CSV_TAIL = ("created_by", "confirmed_by", "confirmed_at", "repeats")
+
+
 def export_csv(session: Session, experiment_id: int) -> str:
-    """One row per trial: index, status, objective, SEM, θ (planned and executed), times, and
-    the experiment's command hold (how the schedule's rows were applied)."""
+    """One row per trial: index, status, objective, SEM, θ (planned and executed), times, the
+    experiment's command hold (how the schedule's rows were applied); then who made and
+    confirmed it, and its raw repeats (``value unit by who; ...``)."""
     exp = get_experiment(session, experiment_id)
     dim = policy_dim(exp.horizon, exp.with_release)
     trials = list_trials(session, experiment_id)
@@ -86,14 +92,32 @@ def export_csv(session: Session, experiment_id: int) -> str:
             *(f"theta_{i}" for i in range(dim)),
             *(f"executed_theta_{i}" for i in range(dim)),
             "command_hold",
+            *CSV_TAIL,
         ]
     )
+    repeats: dict[int, list[str]] = {}
+    for m in session.scalars(
+        select(Measurement)
+        .join(Trial, Measurement.trial_id == Trial.id)
+        .where(Trial.experiment_id == experiment_id)
+        .order_by(Measurement.id)
+    ):
+        repeats.setdefault(m.trial_id, []).append(f"{m.value!r} {m.unit} by {m.created_by}")
     for t in trials:
         d = t.model_dump(mode="json")
         row = ["" if d[f] is None else d[f] for f in CSV_FIELDS]
         ex = t.executed_theta or [""] * dim
-        theta = (repr(v) for v in t.theta)
-        w.writerow([*row, *theta, *(v if v == "" else repr(v) for v in ex), exp.command_hold])
+        tail = ["" if d[f] is None else d[f] for f in CSV_TAIL[:-1]]
+        w.writerow(
+            [
+                *row,
+                *(repr(v) for v in t.theta),
+                *(v if v == "" else repr(v) for v in ex),
+                exp.command_hold,
+                *tail,
+                "; ".join(repeats.get(t.id, [])),
+            ]
+        )
     return buf.getvalue()
 
 
@@ -146,12 +170,22 @@ def import_observations(
         )
         out.append(trial)
     touch(exp)
-    session.commit()
+    session.flush()
     return [TrialRead.build(t, has_trajectory=False) for t in out]
 
 
-def model_insight(session: Session, experiment_id: int, *, n_points: int = 41) -> ModelRead:
-    """Lengthscales, the incumbent and 1-D posterior slices through it (one per θ dim)."""
+def model_insight(
+    session: Session,
+    experiment_id: int,
+    *,
+    n_points: int = 41,
+    viewer: Callable[[Any, list[float], int], dict[str, Any]] | None = None,
+) -> ModelRead:
+    """Lengthscales, the incumbent and 1-D posterior slices through it (one per θ dim).
+
+    ``viewer(inputs, incumbent, n_points) -> model_view's dict`` fits or reuses the model
+    (the server passes ``ComputeRunner``'s, which reuses the suggestion's fit); by default
+    the optimiser is rebuilt here."""
     exp = get_experiment(session, experiment_id)
     inputs = optimizer_inputs(session, exp)
     obs = inputs.observations
@@ -176,25 +210,32 @@ def model_insight(session: Session, experiment_id: int, *, n_points: int = 41) -
         .order_by(Trial.objective.desc(), Trial.index)
     ).first()
     assert best is not None
-    inc = list(best.executed_theta if best.executed_theta is not None else best.theta)
+    theta = best.executed_theta if best.executed_theta is not None else best.theta
+    inc = [float(v) for v in theta]
     head = dict(
         base, incumbent_theta=inc, incumbent_objective=best.objective, incumbent_trial_id=best.id
     )
-    opt = rebuild_optimizer(inputs)
+    if viewer is None:
+        view = model_view(rebuild_optimizer(inputs), inputs, inc, n_points)
+    else:
+        view = viewer(inputs, inc, n_points)
+    return ModelRead(**head, **view)
+
+
+def model_view(opt: Any, inputs: Any, incumbent: list[float], n_points: int) -> dict[str, Any]:
+    """``{lengthscales, slices, message}`` of a fitted optimiser (the CPU-heavy part of
+    ``model_insight``, run where the optimiser is)."""
+    none: dict[str, Any] = {"lengthscales": None, "slices": []}
     if not isinstance(opt, Surrogate):
-        return ModelRead(
-            **head, lengthscales=None, slices=[], message=f"{exp.method} has no surrogate model"
-        )
-    if len(obs) < 2:
-        return ModelRead(
-            **head, lengthscales=None, slices=[], message="the GP needs at least 2 observations"
-        )
+        return {**none, "message": f"{inputs.method} has no surrogate model"}
+    if len(inputs.observations) < 2:
+        return {**none, "message": "the GP needs at least 2 observations"}
     try:
         ls = [float(v) for v in opt.lengthscales()]
         grid = np.linspace(0.0, 1.0, n_points)
         slices = []
         for d in range(inputs.dim):
-            pts = np.tile(np.asarray(inc, dtype=np.float64), (n_points, 1))
+            pts = np.tile(np.asarray(incumbent, dtype=np.float64), (n_points, 1))
             pts[:, d] = grid
             mean, std = opt.predict(pts)
             slices.append(
@@ -206,8 +247,8 @@ def model_insight(session: Session, experiment_id: int, *, n_points: int = 41) -
                 )
             )
     except (OptimError, ValueError, RuntimeError) as exc:
-        return ModelRead(**head, lengthscales=None, slices=[], message=f"model unavailable: {exc}")
-    return ModelRead(**head, lengthscales=ls, slices=slices)
+        return {"lengthscales": None, "slices": [], "message": f"model unavailable: {exc}"}
+    return {"lengthscales": ls, "slices": slices, "message": ""}
 
 
 def _finite(v: float) -> float:

@@ -12,7 +12,6 @@ from sqlalchemy.orm import Session
 
 from app.db.base import utcnow
 from app.db.models import AuditLog, Experiment, Trial
-from app.db.prepared import Prepared
 from app.optim.methods import METHODS, OptimizerSpec
 from app.policy import RELEASE_TASKS, Policy, PolicyError, PressureLimits
 from app.service.audit import record
@@ -63,7 +62,7 @@ def touch(exp: Experiment) -> None:
     exp.updated_at = utcnow()
 
 
-_TOUCH = Prepared(
+_TOUCH = (
     update(Experiment.__table__)
     .where(Experiment.__table__.c.id == bindparam("experiment_id"))
     .values(version=Experiment.__table__.c.version + 1, updated_at=bindparam("now"))
@@ -79,7 +78,7 @@ def touch_id(session: Session, experiment_id: int, *, connection: Connection | N
         touch(session.identity_map[key])
         return
     conn = connection or session.connection()
-    _TOUCH.execute(conn, {"experiment_id": experiment_id, "now": utcnow()})
+    conn.execute(_TOUCH, {"experiment_id": experiment_id, "now": utcnow()})
 
 
 def optimizer_spec(exp: Experiment) -> OptimizerSpec:
@@ -98,7 +97,7 @@ def optimizer_spec(exp: Experiment) -> OptimizerSpec:
 
 
 def create_experiment(session: Session, spec: ExperimentCreate, *, actor: Actor) -> Experiment:
-    """Validate and store a new experiment (committed)."""
+    """Validate and store a new experiment (flushed; the caller's ``Database.write`` commits)."""
     from app.optim import OptimError, build_optimizer
 
     with_release = (
@@ -171,7 +170,7 @@ def create_experiment(session: Session, spec: ExperimentCreate, *, actor: Actor)
         after="active",
         detail={"name": exp.name, "task": exp.task, "target": exp.target},
     )
-    session.commit()
+    session.flush()
     return exp
 
 
@@ -236,7 +235,7 @@ def list_experiments(session: Session) -> list[ExperimentRead]:
 def patch_experiment(
     session: Session, experiment_id: int, patch: ExperimentPatch, *, actor: Actor
 ) -> ExperimentRead:
-    """Change status / notes / budget (committed, audited)."""
+    """Change status / notes / budget (audited; ``Database.write`` commits)."""
     exp = get_experiment(session, experiment_id)
     changes = patch.model_dump(exclude_unset=True)
     for field, value in changes.items():
@@ -257,7 +256,7 @@ def patch_experiment(
             after=None if value is None else str(value)[:2000],
         )
     touch(exp)
-    session.commit()
+    session.flush()
     return read_experiment(session, exp.id)
 
 

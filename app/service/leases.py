@@ -23,7 +23,7 @@ from app.db.base import utcnow
 from app.db.models import Experiment, Lease, Trial
 from app.policy import PolicyError, schedule_hash
 from app.service import lifecycle as lc
-from app.service.artifacts import decode_npz_b64, store_trajectory
+from app.service.artifacts import store_trajectory
 from app.service.audit import record
 from app.service.auth import OPERATOR, Actor
 from app.service.errors import (
@@ -43,20 +43,26 @@ SYSTEM_ACTOR = "system"
 
 
 # --- expiry ----------------------------------------------------------------------------------
+SERVICE_WORKER = "service"  # the worker_id of a run inside the server (app.service.runs)
+
+
 def grant_restart_grace(
     session: Session, *, lease_seconds: float, now: datetime | None = None
 ) -> int:
-    """At server start: give every active lease ``lease_seconds`` from now. Flushes.
+    """At server start: give every active worker lease ``lease_seconds`` from now. Flushes.
 
     Leases run on wall-clock time, but a worker cannot heartbeat while the server is down; without
     this a slow restart would expire healthy leases and rerun (or, on hardware, hold for review)
     trials whose workers are still busy with them. A worker that really died still loses its
-    lease ``lease_seconds`` after the restart.
+    lease ``lease_seconds`` after the restart. Runs inside a server (``SERVICE_WORKER``) get no
+    grace: the process renewing them is gone unless another server still renews them.
     """
     now = now or utcnow()
     until = now + timedelta(seconds=lease_seconds)
     n = 0
-    for lease in session.scalars(select(Lease).where(Lease.status == "active")):
+    for lease in session.scalars(
+        select(Lease).where(Lease.status == "active", Lease.worker_id != SERVICE_WORKER)
+    ):
         if lease.expires_at < until:
             lease.expires_at = until
             n += 1
@@ -64,8 +70,29 @@ def grant_restart_grace(
     return n
 
 
-def sweep_expired(session: Session, *, max_attempts: int, now: datetime | None = None) -> int:
-    """Expire every active lease past its time; requeue/fail/needs_review its trial. Flushes."""
+def _expired_outcome(exp: Experiment, trial: Trial, why: str, max_attempts: int) -> tuple[str, str]:
+    if exp.target == "hardware":
+        return lc.NEEDS_REVIEW, f"{why}; a hardware trial is never rerun on its own"
+    if trial.attempts < max_attempts:
+        return lc.QUEUED, f"{why}; requeued (attempt {trial.attempts}/{max_attempts})"
+    return lc.FAILED, f"{why}; {trial.attempts} attempts, giving up"
+
+
+def sweep_expired(
+    session: Session,
+    *,
+    max_attempts: int,
+    now: datetime | None = None,
+    orphan_after_s: float = 60.0,
+) -> int:
+    """Expire every active lease past its time; requeue/fail/needs_review its trial. Flushes.
+
+    A sim trial run inside a server whose lease expired (the server died or stopped
+    renewing it) fails with that reason. A trial ``running`` for ``orphan_after_s`` with no
+    active lease at all (left by an older version, or by hand) fails (sim) or goes to
+    needs_review (hardware) too: no trial stays running for ever. Returns the leases expired
+    plus the orphans ended.
+    """
     now = now or utcnow()
     leases = list(
         session.scalars(select(Lease).where(Lease.status == "active", Lease.expires_at < now))
@@ -91,13 +118,15 @@ def sweep_expired(session: Session, *, max_attempts: int, now: datetime | None =
         )
         if trial.status != lc.RUNNING:
             continue
-        why = f"worker {lease.worker_id} stopped heartbeating (lease {lease.id} expired)"
-        if exp.target == "hardware":
-            new, reason = lc.NEEDS_REVIEW, f"{why}; a hardware trial is never rerun on its own"
-        elif trial.attempts < max_attempts:
-            new, reason = lc.QUEUED, f"{why}; requeued (attempt {trial.attempts}/{max_attempts})"
+        if lease.worker_id == SERVICE_WORKER:
+            new, reason = (
+                lc.FAILED,
+                f"the server stopped while simulating it (service lease {lease.id} expired "
+                "unrenewed); nothing was recorded",
+            )
         else:
-            new, reason = lc.FAILED, f"{why}; {trial.attempts} attempts, giving up"
+            why = f"worker {lease.worker_id} stopped heartbeating (lease {lease.id} expired)"
+            new, reason = _expired_outcome(exp, trial, why, max_attempts)
         lc.transition(
             session,
             trial,
@@ -108,8 +137,37 @@ def sweep_expired(session: Session, *, max_attempts: int, now: datetime | None =
             now=now,
         )
         touch(exp)
+    has_lease = (
+        select(Lease.id).where(Lease.trial_id == Trial.id, Lease.status == "active").exists()
+    )
+    orphans = list(
+        session.scalars(
+            select(Trial).where(
+                Trial.status == lc.RUNNING,
+                Trial.updated_at < now - timedelta(seconds=orphan_after_s),
+                ~has_lease,
+            )
+        )
+    )
+    for trial in orphans:
+        exp = trial.experiment
+        why = f"running for over {orphan_after_s:g} s with no lease (nothing is running it)"
+        if exp.target == "hardware":
+            new, reason = lc.NEEDS_REVIEW, f"{why}; a person decides"
+        else:
+            new, reason = lc.FAILED, why
+        lc.transition(
+            session,
+            trial,
+            new,
+            actor=SYSTEM_ACTOR,
+            reason=reason,
+            action="trial.orphan_swept",
+            now=now,
+        )
+        touch(exp)
     session.flush()
-    return len(leases)
+    return len(leases) + len(orphans)
 
 
 # --- claim -----------------------------------------------------------------------------------
@@ -208,7 +266,7 @@ def claim(
                 lease_expires_at=lease.expires_at,
             )
         )
-    session.commit()
+    session.flush()
     return out
 
 
@@ -233,16 +291,16 @@ def _lost(lease: Lease, trial: Trial | None) -> LeaseLost:
 def heartbeat(
     session: Session, lease_id: str, *, actor: Actor, lease_seconds: float, max_attempts: int
 ) -> LeaseRead:
-    """Extend an active lease by ``lease_seconds`` (committed). LeaseLost if it expired."""
+    """Extend an active lease by ``lease_seconds``. LeaseLost if it expired (what the sweep
+    did is kept: LeaseLost keeps the transaction's changes)."""
     now = utcnow()
     sweep_expired(session, max_attempts=max_attempts, now=now)
     lease = _get_lease(session, lease_id, actor)
     if lease.status != "active":
-        session.commit()  # keep what the sweep did
         raise _lost(lease, session.get(Trial, lease.trial_id))
     lease.heartbeat_at = now
     lease.expires_at = now + timedelta(seconds=lease_seconds)
-    session.commit()
+    session.flush()
     return LeaseRead(
         lease_id=lease.id,
         trial_id=lease.trial_id,
@@ -266,7 +324,7 @@ def report_result(
     actor: Actor,
     artifacts_dir: Path,
     max_attempts: int,
-    max_bytes: int,
+    trajectory: bytes | None = None,
 ) -> dict[str, Any]:
     """Record what a worker executed and measured under its lease (idempotent per lease).
 
@@ -274,6 +332,8 @@ def report_result(
     the planned θ when the trial ran its plan). A fault sends a sim
     trial to failed and a hardware trial to needs_review; an executed schedule beyond the
     limits sends it to needs_review; otherwise an objective completes the trial.
+    ``trajectory``: the body's ``trajectory_npz_b64`` decoded and checked by
+    ``app.service.artifacts.decode_npz_b64`` before the write transaction began.
     """
     now = utcnow()
     sweep_expired(session, max_attempts=max_attempts, now=now)
@@ -283,14 +343,13 @@ def report_result(
     digest = _result_sha256(trial_id, body)
     if lease.status == "completed":
         if lease.result_sha256 == digest and lease.result_response is not None:
-            session.commit()
+            session.flush()
             return dict(lease.result_response)
         raise DuplicateRequest(
             f"lease {lease.id} already has a different result recorded; nothing stored again"
         )
     trial = session.get(Trial, trial_id, with_for_update=True)
     if lease.status != "active" or trial is None:
-        session.commit()
         raise _lost(lease, trial)
     exp = trial.experiment
     # --- validate everything before storing anything
@@ -309,9 +368,9 @@ def report_result(
         raise InvalidInput(f"executed result: {exc}") from None
     if body.objective is not None:
         check_value(body.objective, exp.objective_unit, exp.objective_unit, what="objective")
-    raw = None
-    if body.trajectory_npz_b64 is not None:
-        raw = decode_npz_b64(body.trajectory_npz_b64, max_bytes=max_bytes)
+    raw = trajectory
+    if body.trajectory_npz_b64 is not None and raw is None:
+        raise InvalidInput("the trajectory must be decoded (decode_npz_b64) before the lock")
     beyond = None
     try:
         check_schedule_safe(exp, exec_sched, exec_release)
@@ -368,5 +427,5 @@ def report_result(
     lease.result_sha256 = digest
     lease.result_response = response
     touch(exp)
-    session.commit()
+    session.flush()
     return response

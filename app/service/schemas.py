@@ -6,14 +6,15 @@
 
 from __future__ import annotations
 
+import re
 from datetime import datetime
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, computed_field
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, computed_field, field_validator
 
 from app.db.models import AuditLog, Experiment, Trial
 from app.optim.methods import DEFAULT_METHOD
-from app.policy import TaskName, policy_dim, schedule_hash
+from app.policy import N_CHAMBERS, TaskName, policy_dim, schedule_hash
 
 Target = Literal["sim", "hardware"]
 CommandHold = Literal["zero", "linear"]  # app.sim.COMMAND_HOLDS (not imported: it loads MuJoCo)
@@ -22,8 +23,29 @@ Acquisition = Literal["logei", "ucb", "qlognei"]
 Unit = Literal["m", "m/s", "N", "score"]
 
 
+# Control characters other than tab and newlines (NUL first: PostgreSQL cannot store it), and
+# in names the invisible marks that reorder text on screen (bidi controls).
+_CONTROL = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
+_BIDI = re.compile("[\u200e\u200f\u061c\u202a-\u202e\u2066-\u2069]")
+_NAMES = frozenset({"name", "username", "worker_id", "unit", "sim_preset", "method"})
+
+
 class _In(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    """Input: unknown fields refused, finite numbers only, strict types (a number is a
+    number: ``"0.5"`` or ``false`` for one is refused, not converted), and text without
+    control characters (names without bidi controls either)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
+
+    @field_validator("*", mode="after")
+    @classmethod
+    def _clean_text(cls, value: Any, info: ValidationInfo) -> Any:
+        if isinstance(value, str) and info.field_name != "password":
+            if _CONTROL.search(value):
+                raise ValueError("control characters (such as NUL) are not allowed")
+            if info.field_name in _NAMES and _BIDI.search(value):
+                raise ValueError("bidirectional-text control characters are not allowed")
+        return value
 
 
 # --- experiments -----------------------------------------------------------------------------
@@ -412,6 +434,20 @@ class ResultIn(_In):
     trajectory_npz_b64: str | None = Field(None, description="np.savez bytes, base64")
     fault: str | None = Field(None, max_length=2000)
     summary: dict[str, Any] | None = Field(None, description="e.g. RolloutResult.to_summary()")
+
+    @field_validator("executed_pressure_schedule_pa")
+    @classmethod
+    def _rectangular(cls, rows: list[list[float]] | None) -> list[list[float]] | None:
+        if rows is None:
+            return None
+        if not rows or len(rows) > 1000:
+            raise ValueError(f"needs 1 to 1000 rows (control steps), got {len(rows)}")
+        for i, row in enumerate(rows):
+            if len(row) != N_CHAMBERS:
+                raise ValueError(
+                    f"row {i} has {len(row)} pressures; every row needs {N_CHAMBERS} (Pa)"
+                )
+        return rows
 
 
 class ResultRead(BaseModel):

@@ -4,6 +4,7 @@ resolve, confirm (hardware gate) and run in the service (sim, the pre-worker pat
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -258,12 +259,17 @@ def rebuild_optimizer(inputs: OptimizerInputs) -> Optimizer:
 
 
 def ask(
-    inputs: OptimizerInputs, n: int, *, timings: dict[str, float] | None = None
+    inputs: OptimizerInputs,
+    n: int,
+    *,
+    timings: dict[str, float] | None = None,
+    on_fitted: Callable[[Any], None] | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """(n, D) suggested θ, and the model's predicted mean/std there (None before a GP).
 
     ``timings`` (if given) accumulates ``optimizer_s``: the seconds spent in build_optimizer +
-    observe_many + suggest, i.e. what the raw optimiser costs on this data.
+    observe_many + suggest, i.e. what the raw optimiser costs on this data. ``on_fitted``
+    (if given) gets the optimiser after its suggestion (``app.service.compute`` keeps it).
     """
     t0 = time.perf_counter()
     opt = rebuild_optimizer(inputs)
@@ -281,6 +287,8 @@ def ask(
             mean, std = opt.predict(thetas)
         except (OptimError, ValueError, RuntimeError):
             mean = std = None
+    if on_fitted is not None:
+        on_fitted(opt)
     return thetas, mean, std
 
 
@@ -291,8 +299,12 @@ def suggest(
     *,
     actor: Actor,
     timings: dict[str, float] | None = None,
+    asker: Callable[[OptimizerInputs, int], tuple[Any, Any, Any, float]] | None = None,
 ) -> list[TrialRead]:
     """Ask the optimiser for ``n`` trials given the completed and pending ones; store them.
+
+    ``asker(inputs, n) -> (thetas, mean, std, optimizer_s)`` runs the optimiser (the server
+    passes ``ComputeRunner``'s, bounded in time); by default ``ask`` in this thread.
 
     The optimiser runs outside the write lock (a GP fit takes seconds; workers keep
     reporting meanwhile). Before storing, the data is compared with what the optimiser saw:
@@ -304,7 +316,12 @@ def suggest(
             exp = get_experiment(s, experiment_id)
             _check_can_add(s, exp, n)
             inputs = optimizer_inputs(s, exp)
-        thetas, mean, std = ask(inputs, n, timings=timings)
+        if asker is None:
+            thetas, mean, std = ask(inputs, n, timings=timings)
+        else:
+            thetas, mean, std, opt_s = asker(inputs, n)
+            if timings is not None:
+                timings["optimizer_s"] = timings.get("optimizer_s", 0.0) + opt_s
         with db.write() as s:
             exp = get_experiment(s, experiment_id, for_update=True)
             now = optimizer_inputs(s, exp)
@@ -337,7 +354,7 @@ def suggest(
 def attach(
     session: Session, experiment_id: int, theta: list[float], *, note: str, actor: Actor
 ) -> TrialRead:
-    """Add a trial with an operator-chosen θ (checked like any other), committed."""
+    """Add a trial with an operator-chosen θ (checked like any other)."""
     exp = get_experiment(session, experiment_id, for_update=True)
     _check_can_add(session, exp, 1)
     predicted = None
@@ -352,7 +369,7 @@ def attach(
         predicted=predicted,
     )
     touch(exp)
-    session.commit()
+    session.flush()
     return TrialRead.build(trial, has_trajectory=False)
 
 
@@ -400,7 +417,7 @@ def _end_by_operator(
         _end_lease(session, trial, "revoked", actor=actor, why=f"trial {status}: {reason}")
     touch(trial.experiment)
     out = TrialRead.build(trial)
-    session.commit()
+    session.flush()
     return out
 
 
@@ -456,7 +473,7 @@ def resolve(session: Session, trial_id: int, body: ResolveIn, *, actor: Actor) -
     )
     touch(exp)
     out = TrialRead.build(trial)
-    session.commit()
+    session.flush()
     return out
 
 
@@ -499,5 +516,5 @@ def confirm(session: Session, trial_id: int, given_hash: str, *, actor: Actor) -
     )
     touch(exp)
     out = TrialRead.build(trial)
-    session.commit()
+    session.flush()
     return out

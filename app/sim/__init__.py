@@ -26,6 +26,7 @@ from app.sim.rollout import (
     Trajectory,
     check_command_hold,
     check_objective_rule,
+    check_rollout,
     rollout,
 )
 
@@ -50,6 +51,7 @@ __all__ = [
     "build_spec",
     "check_command_hold",
     "check_objective_rule",
+    "check_rollout",
     "export_xml",
     "rollout",
     "rollout_batch",

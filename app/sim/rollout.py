@@ -363,6 +363,27 @@ def _check_warnings(warn: Any, task: str, preset: str, t: float) -> None:
         raise _diverged(task, preset, t, f"MuJoCo found {what} (by this time)")
 
 
+def check_rollout(
+    task: str,
+    pressure_schedule_pa: Any,
+    *,
+    release_step: int | None = None,
+    preset: str | Preset = "reference",
+    params: ArmParams | None = None,
+) -> None:
+    """Raise ValueError for what ``rollout`` would refuse (task, schedule, release step, a
+    horizon whose control step is not a whole number of physics steps), without simulating."""
+    p = get_preset(preset)
+    params = effective_params(p, params)
+    schedule, _ = _check_inputs(task, pressure_schedule_pa, release_step, params)
+    dt = float(compiled_model(task, p, params).opt.timestep)
+    horizon = schedule.shape[0]
+    try:
+        _steps_for(EPISODE_S / horizon, dt, "a control step")
+    except ValueError as exc:
+        raise ValueError(f"horizon {horizon} cannot be simulated: {exc}") from None
+
+
 def rollout(
     task: str,
     pressure_schedule_pa: np.ndarray,
