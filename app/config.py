@@ -44,6 +44,14 @@ class Settings(BaseSettings):
     max_attempts: int = Field(3, ge=1, description="claims of one sim trial before `failed`")
     max_body_bytes: int = Field(16 * 1024 * 1024, ge=1024, description="largest request body")
     preview: PreviewSettings = Field(default_factory=PreviewSettings)
+    torch_threads: int = Field(
+        1,
+        ge=1,
+        le=1024,
+        description="torch's intra-op threads for GP fits and acquisition searches (these GPs "
+        "are small: one thread is as fast as two on an idle machine, several times faster on "
+        "a busy one; parallelism comes from running optimisers side by side)",
+    )
     db_busy_timeout_s: float = Field(
         5.0,
         gt=0,

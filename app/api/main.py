@@ -98,10 +98,14 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
         app.state.db.dispose()
 
 
-def _warm_imports() -> None:
+def _warm_imports(settings: Settings) -> None:
     """Import the optimisers (torch, BoTorch) and the simulator (MuJoCo) now, at start-up,
-    so the first request that needs them does not wait many seconds for the imports."""
-    import app.optim
+    so the first request that needs them does not wait many seconds for the imports; set
+    torch's threads for the GP work (``settings.torch_threads``)."""
+    import app.optim.bo
+    from app.procs import set_torch_threads
+
+    set_torch_threads(settings.torch_threads)
 
     try:
         import app.sim  # noqa: F401
@@ -124,7 +128,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     """
     settings = settings or Settings()
     settings.artifacts_dir.mkdir(parents=True, exist_ok=True)
-    _warm_imports()
+    _warm_imports(settings)
     app = FastAPI(
         title="handful",
         version=VERSION,

@@ -62,6 +62,9 @@ class Experiment(Base):
     task: Mapped[str] = mapped_column(String(32))
     target: Mapped[str] = mapped_column(String(16))
     sim_preset: Mapped[str] = mapped_column(String(32), default="reference")
+    # how each schedule row is applied: "zero" (held each step) or "linear" (ramped from the
+    # previous row, from zero at reset); a ramped schedule is a different motion
+    command_hold: Mapped[str] = mapped_column(String(16), default="zero", server_default="zero")
     objective_unit: Mapped[str] = mapped_column(String(16))  # m | m/s | N | score
     # policy
     levels: Mapped[int] = mapped_column(Integer)

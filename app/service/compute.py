@@ -93,12 +93,12 @@ def suggest_job(inputs: Any, n: int) -> tuple[Any, Any, Any, float]:
 def model_job(inputs: Any, incumbent: list[float], n_points: int) -> tuple[dict[str, Any], bool]:
     """``data.model_view`` on the cached fit when there is one; (view, whether it was cached)."""
     from app.service.data import model_view
-    from app.service.trials import build_optimizer
+    from app.service.trials import rebuild_optimizer
 
     opt = fitted(inputs)
     hit = opt is not None
     if opt is None:
-        opt = build_optimizer(inputs)
+        opt = rebuild_optimizer(inputs)
         remember(inputs, opt)
     return model_view(opt, inputs, incumbent, n_points), hit
 

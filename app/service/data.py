@@ -14,10 +14,12 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.db.models import Measurement, Trial
+from app.optim import OptimError, Surrogate
+from app.policy import policy_dim
 from app.service import lifecycle as lc
 from app.service.auth import Actor
 from app.service.errors import InvalidInput
-from app.service.experiments import get_experiment, read_experiment, touch
+from app.service.experiments import executed_theta, get_experiment, read_experiment, touch
 from app.service.measurements import check_value, store_measurement
 from app.service.schemas import (
     ImportIn,
@@ -32,6 +34,7 @@ from app.service.trials import (
     _next_index,
     list_trials,
     optimizer_inputs,
+    rebuild_optimizer,
 )
 
 
@@ -75,10 +78,11 @@ CSV_TAIL = ("created_by", "confirmed_by", "confirmed_at", "repeats")
 
 
 def export_csv(session: Session, experiment_id: int) -> str:
-    """One row per trial: index, status, objective, SEM, θ (planned and executed), times;
-    then who made and confirmed it, and its raw repeats (``value unit by who; ...``)."""
+    """One row per trial: index, status, objective, SEM, θ (planned and executed), times, the
+    experiment's command hold (how the schedule's rows were applied); then who made and
+    confirmed it, and its raw repeats (``value unit by who; ...``)."""
     exp = get_experiment(session, experiment_id)
-    dim = exp.horizon + int(exp.with_release)
+    dim = policy_dim(exp.horizon, exp.with_release)
     trials = list_trials(session, experiment_id)
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
@@ -87,6 +91,7 @@ def export_csv(session: Session, experiment_id: int) -> str:
             *CSV_FIELDS,
             *(f"theta_{i}" for i in range(dim)),
             *(f"executed_theta_{i}" for i in range(dim)),
+            "command_hold",
             *CSV_TAIL,
         ]
     )
@@ -108,6 +113,7 @@ def export_csv(session: Session, experiment_id: int) -> str:
                 *row,
                 *(repr(v) for v in t.theta),
                 *(v if v == "" else repr(v) for v in ex),
+                exp.command_hold,
                 *tail,
                 "; ".join(repeats.get(t.id, [])),
             ]
@@ -139,9 +145,11 @@ def import_observations(
             )
         except InvalidInput as exc:
             raise InvalidInput(f"observations[{i}]: {exc}") from None
-        trial.executed_theta = list(trial.theta)
         trial.executed_pressure_schedule_pa = trial.pressure_schedule_pa
         trial.executed_release_step = trial.release_step
+        trial.executed_theta = executed_theta(
+            exp, trial.theta, trial.pressure_schedule_pa, trial.release_step
+        )
         store_measurement(
             session,
             trial,
@@ -208,9 +216,7 @@ def model_insight(
         base, incumbent_theta=inc, incumbent_objective=best.objective, incumbent_trial_id=best.id
     )
     if viewer is None:
-        from app.service.trials import build_optimizer
-
-        view = model_view(build_optimizer(inputs), inputs, inc, n_points)
+        view = model_view(rebuild_optimizer(inputs), inputs, inc, n_points)
     else:
         view = viewer(inputs, inc, n_points)
     return ModelRead(**head, **view)
@@ -219,10 +225,8 @@ def model_insight(
 def model_view(opt: Any, inputs: Any, incumbent: list[float], n_points: int) -> dict[str, Any]:
     """``{lengthscales, slices, message}`` of a fitted optimiser (the CPU-heavy part of
     ``model_insight``, run where the optimiser is)."""
-    from app.optim import OptimError
-
     none: dict[str, Any] = {"lengthscales": None, "slices": []}
-    if not hasattr(opt, "predict"):
+    if not isinstance(opt, Surrogate):
         return {**none, "message": f"{inputs.method} has no surrogate model"}
     if len(inputs.observations) < 2:
         return {**none, "message": "the GP needs at least 2 observations"}

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 from sqlalchemy import bindparam, func, select, update
 from sqlalchemy import inspect as sa_inspect
 from sqlalchemy.engine import Connection
@@ -11,7 +12,8 @@ from sqlalchemy.orm import Session
 
 from app.db.base import utcnow
 from app.db.models import AuditLog, Experiment, Trial
-from app.policy import Policy, PolicyError, PressureLimits
+from app.optim.methods import METHODS, OptimizerSpec
+from app.policy import RELEASE_TASKS, Policy, PolicyError, PressureLimits
 from app.service.audit import record
 from app.service.auth import Actor
 from app.service.errors import InvalidInput, NotFound
@@ -43,6 +45,17 @@ def policy_of(exp: Experiment) -> Policy:
     )
 
 
+def executed_theta(
+    exp: Experiment, planned_theta: Any, executed_schedule_pa: Any, executed_release_step: Any
+) -> list[float]:
+    """The θ the optimiser observes for a trial of ``exp`` that ran ``executed_schedule_pa``:
+    ``Policy.executed_theta``, the one rule (the planned θ when the trial ran its plan)."""
+    theta = policy_of(exp).executed_theta(
+        np.asarray(planned_theta, dtype=np.float64), executed_schedule_pa, executed_release_step
+    )
+    return [float(v) for v in theta]
+
+
 def touch(exp: Experiment) -> None:
     """Mark the experiment changed (its version is the live pages' change signal)."""
     exp.version = (exp.version or 0) + 1
@@ -68,28 +81,28 @@ def touch_id(session: Session, experiment_id: int, *, connection: Connection | N
     conn.execute(_TOUCH, {"experiment_id": experiment_id, "now": utcnow()})
 
 
-def optimizer_kwargs(exp: Experiment) -> dict[str, Any]:
-    """Settings passed to ``app.optim.make_optimizer`` for this experiment."""
-    from app.optim import BO_METHODS, NEEDS_LEVELS
-
-    kwargs: dict[str, Any] = {}
-    if exp.method in BO_METHODS:
-        if exp.acquisition is not None:
-            kwargs["acquisition"] = exp.acquisition
-        if exp.kappa is not None:
-            kwargs["kappa"] = exp.kappa
-        kwargs["n_initial"] = exp.n_initial
-        if exp.method in NEEDS_LEVELS:
-            kwargs.update(levels=exp.levels, horizon=exp.horizon)
-    kwargs.update(exp.optimizer_settings or {})
-    return kwargs
+def optimizer_spec(exp: Experiment) -> OptimizerSpec:
+    """What ``app.optim.build_optimizer`` builds this experiment's optimiser from."""
+    return OptimizerSpec(
+        exp.method,
+        levels=exp.levels,
+        horizon=exp.horizon,
+        with_release=exp.with_release,
+        seed=exp.seed,
+        settings=dict(exp.optimizer_settings or {}),
+        n_initial=exp.n_initial,
+        acquisition=exp.acquisition,
+        kappa=exp.kappa,
+    )
 
 
 def create_experiment(session: Session, spec: ExperimentCreate, *, actor: Actor) -> Experiment:
     """Validate and store a new experiment (flushed; the caller's ``Database.write`` commits)."""
-    from app.optim import METHODS, OptimError, make_optimizer
+    from app.optim import OptimError, build_optimizer
 
-    with_release = spec.with_release if spec.with_release is not None else spec.task == "throw"
+    with_release = (
+        spec.with_release if spec.with_release is not None else spec.task in RELEASE_TASKS
+    )
     if spec.target == "hardware" and spec.limits is None:
         raise InvalidInput(
             "a hardware experiment needs limits (nominal_pa, max_step_pa, source_pa)"
@@ -120,6 +133,7 @@ def create_experiment(session: Session, spec: ExperimentCreate, *, actor: Actor)
         task=spec.task,
         target=spec.target,
         sim_preset=spec.sim_preset,
+        command_hold=spec.command_hold,
         objective_unit=spec.objective_unit or DEFAULT_UNIT[spec.task],
         levels=spec.levels,
         horizon=spec.horizon,
@@ -140,7 +154,7 @@ def create_experiment(session: Session, spec: ExperimentCreate, *, actor: Actor)
         created_by=actor.username,
     )
     try:  # refuse settings the optimiser would refuse later, now, with its message
-        make_optimizer(exp.method, policy.dim, seed=exp.seed, **optimizer_kwargs(exp))
+        build_optimizer(optimizer_spec(exp))
     except (OptimError, ValueError, TypeError) as exc:
         raise InvalidInput(f"optimizer settings: {exc}") from None
     _check_preset(spec.sim_preset)

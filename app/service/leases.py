@@ -21,7 +21,7 @@ from sqlalchemy.orm import Session
 
 from app.db.base import utcnow
 from app.db.models import Experiment, Lease, Trial
-from app.policy import N_CHAMBERS, Policy, PolicyError, schedule_hash
+from app.policy import PolicyError, schedule_hash
 from app.service import lifecycle as lc
 from app.service.artifacts import store_trajectory
 from app.service.audit import record
@@ -34,41 +34,12 @@ from app.service.errors import (
     NotFound,
     SafetyViolation,
 )
-from app.service.experiments import policy_of, touch
+from app.service.experiments import executed_theta, touch
 from app.service.measurements import check_value, store_measurement
 from app.service.schemas import ClaimIn, ClaimRead, ExperimentRead, LeaseRead, ResultIn, TrialRead
 from app.service.trials import check_schedule_safe
 
 SYSTEM_ACTOR = "system"
-
-
-def theta_from_schedule(
-    policy: Policy, pressure_schedule_pa: Any, release_step: int | None
-) -> np.ndarray:
-    """θ (D,) of an executed schedule (H, 12) Pa: exact when on the policy's level grid,
-    else each pair snapped to its nearest level (what the GP is fitted on)."""
-    sched = np.asarray(pressure_schedule_pa, dtype=np.float64)
-    if sched.shape != (policy.horizon, N_CHAMBERS) or not np.all(np.isfinite(sched)):
-        raise InvalidInput(
-            f"executed_pressure_schedule_pa must be {policy.horizon}×{N_CHAMBERS} finite "
-            f"numbers (Pa), got shape {sched.shape}"
-        )
-    table = policy.level_pressures_pa()  # (12, P)
-    levels = np.empty((policy.horizon, 6), dtype=np.int64)
-    for u in range(6):
-        pair = sched[:, 2 * u : 2 * u + 2]  # (H, 2)
-        err = np.abs(table[None, 2 * u : 2 * u + 2, :] - pair[:, :, None]).mean(axis=1)  # (H, P)
-        levels[:, u] = np.argmin(err, axis=1)
-    actions = np.ravel_multi_index(tuple(levels.T), (policy.levels,) * 6)
-    if policy.with_release:
-        if release_step is None or not 1 <= int(release_step) <= policy.horizon:
-            raise InvalidInput(f"executed_release_step must be in 1..{policy.horizon}")
-    else:
-        release_step = None
-    try:
-        return policy.theta_from_actions(np.asarray(actions), release_step)
-    except PolicyError as exc:
-        raise InvalidInput(str(exc)) from None
 
 
 # --- expiry ----------------------------------------------------------------------------------
@@ -357,7 +328,8 @@ def report_result(
 ) -> dict[str, Any]:
     """Record what a worker executed and measured under its lease (idempotent per lease).
 
-    The executed schedule gives the executed θ the GP is fitted on. A fault sends a sim
+    The executed schedule gives the executed θ the GP is fitted on (``Policy.executed_theta``:
+    the planned θ when the trial ran its plan). A fault sends a sim
     trial to failed and a hardware trial to needs_review; an executed schedule beyond the
     limits sends it to needs_review; otherwise an objective completes the trial.
     ``trajectory``: the body's ``trajectory_npz_b64`` decoded and checked by
@@ -380,7 +352,6 @@ def report_result(
     if lease.status != "active" or trial is None:
         raise _lost(lease, trial)
     exp = trial.experiment
-    policy = policy_of(exp)
     # --- validate everything before storing anything
     exec_sched = body.executed_pressure_schedule_pa
     exec_release = body.executed_release_step
@@ -389,9 +360,12 @@ def report_result(
     ran = exec_sched is not None or not body.fault
     if exec_sched is None:
         exec_sched, exec_release = trial.pressure_schedule_pa, trial.release_step
-    exec_theta = theta_from_schedule(policy, exec_sched, exec_release)
-    if not policy.with_release:
+    if not exp.with_release:
         exec_release = None
+    try:
+        exec_theta = executed_theta(exp, trial.theta, exec_sched, exec_release)
+    except PolicyError as exc:
+        raise InvalidInput(f"executed result: {exc}") from None
     if body.objective is not None:
         check_value(body.objective, exp.objective_unit, exp.objective_unit, what="objective")
     raw = trajectory
@@ -406,7 +380,7 @@ def report_result(
     if ran:
         trial.executed_pressure_schedule_pa = np.asarray(exec_sched, dtype=np.float64).tolist()
         trial.executed_release_step = exec_release
-        trial.executed_theta = [float(v) for v in exec_theta]
+        trial.executed_theta = exec_theta
     if raw is not None:
         store_trajectory(session, artifacts_dir, trial, raw, actor=actor, tag=lease.id[:8])
     if body.objective is not None:

@@ -27,7 +27,7 @@ from app.service import lifecycle as lc
 from app.service.artifacts import npz_to_json, store_trajectory
 from app.service.auth import Actor
 from app.service.errors import Conflict, InvalidInput, NotFound
-from app.service.experiments import touch
+from app.service.experiments import executed_theta, touch
 from app.service.leases import SERVICE_WORKER
 from app.service.measurements import check_value, store_measurement
 from app.service.schemas import PreviewJobRead, TrialRead
@@ -55,6 +55,7 @@ class ServiceRun:
     preset: str
     schedule: np.ndarray
     release_step: int | None
+    command_hold: str
 
 
 def start_run(
@@ -105,7 +106,15 @@ def start_run(
     session.add(lease)
     touch(exp)
     session.flush()
-    return ServiceRun(trial.id, lease.id, exp.task, exp.sim_preset, sched, trial.release_step)
+    return ServiceRun(
+        trial.id,
+        lease.id,
+        exp.task,
+        exp.sim_preset,
+        sched,
+        trial.release_step,
+        exp.command_hold,
+    )
 
 
 def renew_run(
@@ -144,7 +153,7 @@ def finish_run(
     lease.ended_at = now
     trial.executed_pressure_schedule_pa = np.asarray(run.schedule).tolist()
     trial.executed_release_step = run.release_step
-    trial.executed_theta = list(trial.theta)
+    trial.executed_theta = executed_theta(exp, trial.theta, run.schedule, run.release_step)
     value = None if result is None else float(result.objective)
     if value is not None and error is None:
         try:
@@ -227,6 +236,7 @@ def run_trial(
             release_step=run.release_step,
             preset=run.preset,
             record_qpos=True,
+            command_hold=run.command_hold,
         )
     except SimulationDiverged as exc:
         error = f"simulation diverged: {exc}"
@@ -252,6 +262,7 @@ class PreviewJob:
     schedule: np.ndarray
     release_step: int | None
     schedule_hash: str
+    command_hold: str = "zero"
     status: str = "queued"
     progress: float = 0.0
     error: str | None = None
@@ -292,6 +303,7 @@ class PreviewRunner:
                 trial_id=trial.id,
                 task=exp.task,
                 preset=exp.sim_preset,
+                command_hold=exp.command_hold,
                 schedule=sched,
                 release_step=trial.release_step,
                 schedule_hash=schedule_hash(sched, trial.release_step),
@@ -314,6 +326,7 @@ class PreviewRunner:
                 release_step=job.release_step,
                 preset=job.preset,
                 record_qpos=True,
+                command_hold=job.command_hold,
             )
             job.progress = 0.9
             raw = _trajectory_npz_bytes(res)

@@ -10,13 +10,14 @@ import re
 from datetime import datetime
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, computed_field, field_validator
 
 from app.db.models import AuditLog, Experiment, Trial
-from app.policy import N_CHAMBERS, schedule_hash
+from app.optim.methods import DEFAULT_METHOD
+from app.policy import N_CHAMBERS, TaskName, policy_dim, schedule_hash
 
-TaskName = Literal["throw", "hammer", "tip_speed"]
 Target = Literal["sim", "hardware"]
+CommandHold = Literal["zero", "linear"]  # app.sim.COMMAND_HOLDS (not imported: it loads MuJoCo)
 ExperimentStatus = Literal["active", "paused", "completed", "archived"]
 Acquisition = Literal["logei", "ucb", "qlognei"]
 Unit = Literal["m", "m/s", "N", "score"]
@@ -68,8 +69,7 @@ class ExperimentCreate(_In):
     horizon: int = Field(10, ge=1, le=100, description="H, control steps over 5 s")
     with_release: bool | None = Field(None, description="release-step parameter (throw)")
     limits: LimitsIn | None = Field(None, description="required for hardware")
-    # app.optim.DEFAULT_METHOD (not imported: it would load torch with the schemas)
-    method: str = Field("bo-lei-default", description="one of app.optim.METHODS")
+    method: str = Field(DEFAULT_METHOD, description="one of app.optim.METHODS")
     acquisition: Acquisition | None = Field(None, description="None: the method's default")
     kappa: float | None = Field(None, ge=0, le=1000, description="UCB κ (μ + √κ σ)")
     n_initial: int | None = Field(None, ge=2, le=10_000, description="random trials; D + 1")
@@ -78,6 +78,11 @@ class ExperimentCreate(_In):
     budget: int | None = Field(None, ge=1, le=1_000_000, description="max trials")
     notes: str = Field("", max_length=20_000)
     sim_preset: str = Field("reference", max_length=32)
+    command_hold: CommandHold = Field(
+        "zero",
+        description="zero: each row held for its step; linear: ramped from the previous row "
+        "(from zero pressures at the start) over the step",
+    )
     objective_unit: Unit | None = Field(
         None, description="unit of measurements; default m/s for tip_speed, else score"
     )
@@ -105,6 +110,7 @@ class ExperimentRead(BaseModel):
     task: str
     target: str
     sim_preset: str
+    command_hold: str
     objective_unit: str
     levels: int
     horizon: int
@@ -152,11 +158,12 @@ class ExperimentRead(BaseModel):
             task=exp.task,
             target=exp.target,
             sim_preset=exp.sim_preset,
+            command_hold=exp.command_hold,
             objective_unit=exp.objective_unit,
             levels=exp.levels,
             horizon=exp.horizon,
             with_release=exp.with_release,
-            dim=exp.horizon + int(exp.with_release),
+            dim=policy_dim(exp.horizon, exp.with_release),
             limits=limits,
             method=exp.method,
             acquisition=exp.acquisition,
@@ -268,7 +275,12 @@ class AuditRead(BaseModel):
 
 
 class TrialRead(BaseModel):
-    """A trial as the API shows it (see docs/ARCHITECTURE.md, "Trial JSON")."""
+    """A trial as the API shows it (see docs/ARCHITECTURE.md, "Trial JSON"): the stored
+    columns of a ``Trial`` (read by attribute), its schedule's hash and its duration."""
+
+    model_config = ConfigDict(
+        from_attributes=True, json_schema_serialization_defaults_required=True
+    )
 
     id: int
     experiment_id: int
@@ -288,7 +300,6 @@ class TrialRead(BaseModel):
     n_measurements: int
     predicted_mean: float | None
     predicted_std: float | None
-    schedule_hash: str
     confirmed_hash: str | None
     confirmed_by: str | None
     confirmed_at: datetime | None
@@ -298,50 +309,31 @@ class TrialRead(BaseModel):
     updated_at: datetime
     started_at: datetime | None
     finished_at: datetime | None
-    duration_s: float | None
-    has_trajectory: bool
+    has_trajectory: bool = False
+
+    @computed_field  # type: ignore[prop-decorator]
+    @property
+    def schedule_hash(self) -> str:
+        """What an operator's confirmation binds (``app.policy.schedule_hash``)."""
+        return schedule_hash(self.pressure_schedule_pa, self.release_step)
+
+    @computed_field  # type: ignore[prop-decorator]
+    @property
+    def duration_s(self) -> float | None:
+        """Seconds from start to finish, once both are known."""
+        if self.started_at is None or self.finished_at is None:
+            return None
+        return (self.finished_at - self.started_at).total_seconds()
 
     @classmethod
     def build(cls, t: Trial, *, has_trajectory: bool | None = None) -> TrialRead:
-        duration = None
-        if t.started_at is not None and t.finished_at is not None:
-            duration = (t.finished_at - t.started_at).total_seconds()
+        """``t`` as the API shows it; ``has_trajectory`` (None: look through its artifacts)
+        saves loading them when the caller knows."""
+        out = cls.model_validate(t)
         if has_trajectory is None:
             has_trajectory = any(a.kind == "trajectory" for a in t.artifacts)
-        return cls(
-            id=t.id,
-            experiment_id=t.experiment_id,
-            index=t.index,
-            status=t.status,
-            status_reason=t.status_reason,
-            source=t.source,
-            note=t.note,
-            theta=list(t.theta),
-            pressure_schedule_pa=[list(r) for r in t.pressure_schedule_pa],
-            release_step=t.release_step,
-            executed_theta=None if t.executed_theta is None else list(t.executed_theta),
-            executed_pressure_schedule_pa=None
-            if t.executed_pressure_schedule_pa is None
-            else [list(r) for r in t.executed_pressure_schedule_pa],
-            executed_release_step=t.executed_release_step,
-            objective=t.objective,
-            objective_sem=t.objective_sem,
-            n_measurements=t.n_measurements,
-            predicted_mean=t.predicted_mean,
-            predicted_std=t.predicted_std,
-            schedule_hash=schedule_hash(t.pressure_schedule_pa, t.release_step),
-            confirmed_hash=t.confirmed_hash,
-            confirmed_by=t.confirmed_by,
-            confirmed_at=t.confirmed_at,
-            attempts=t.attempts,
-            created_by=t.created_by,
-            created_at=t.created_at,
-            updated_at=t.updated_at,
-            started_at=t.started_at,
-            finished_at=t.finished_at,
-            duration_s=duration,
-            has_trajectory=has_trajectory,
-        )
+        out.has_trajectory = has_trajectory
+        return out
 
 
 class MeasurementReceipt(BaseModel):
@@ -380,9 +372,8 @@ class TrialDetail(TrialRead):
 
     @classmethod
     def build_detail(cls, t: Trial, audit: list[AuditLog]) -> TrialDetail:
-        base = TrialRead.build(t).model_dump()
         return cls(
-            **base,
+            **dict(TrialRead.build(t)),
             measurements=[MeasurementRead.model_validate(m) for m in t.measurements],
             audit=[AuditRead.model_validate(a) for a in audit],
         )

@@ -15,7 +15,21 @@ from sqlalchemy.orm import Session
 from app.db.base import utcnow
 from app.db.models import AuditLog, Confirmation, Experiment, Lease, Trial
 from app.db.session import Database
-from app.policy import Policy, PolicyError, PressureLimitError, schedule_hash
+from app.optim import (
+    Observation,
+    OptimError,
+    Optimizer,
+    OptimizerSpec,
+    Surrogate,
+    build_optimizer,
+)
+from app.policy import (
+    Policy,
+    PolicyError,
+    PressureLimitError,
+    check_release_step,
+    schedule_hash,
+)
 from app.service import lifecycle as lc
 from app.service.audit import record
 from app.service.auth import Actor
@@ -26,7 +40,7 @@ from app.service.errors import (
     NotFound,
     SafetyViolation,
 )
-from app.service.experiments import get_experiment, optimizer_kwargs, policy_of, touch
+from app.service.experiments import get_experiment, optimizer_spec, policy_of, touch
 from app.service.schemas import ResolveIn, TrialDetail, TrialRead
 
 
@@ -99,11 +113,15 @@ def check_schedule_safe(exp: Experiment, schedule: Any, release_step: int | None
         raise SafetyViolation(f"schedule beyond the pressure limits: {exc}") from None
     except (PolicyError, ValueError, TypeError) as exc:
         raise SafetyViolation(f"schedule refused: {exc}") from None
-    if exp.with_release:
-        if release_step is None or not 1 <= int(release_step) <= exp.horizon:
-            raise SafetyViolation(f"release_step must be in 1..{exp.horizon}, got {release_step}")
-    elif release_step is not None:
-        raise SafetyViolation("this experiment has no release step")
+    try:
+        check_release_step(
+            release_step,
+            horizon=exp.horizon,
+            with_release=exp.with_release,
+            owner="this experiment",
+        )
+    except PolicyError as exc:
+        raise SafetyViolation(str(exc)) from None
     return sched
 
 
@@ -185,20 +203,20 @@ def _new_trial(
 class OptimizerInputs:
     """What the optimiser is rebuilt from: a snapshot of the experiment's trials."""
 
-    method: str
-    dim: int
-    seed: int
-    kwargs: dict[str, Any]
-    observations: list[Any]  # app.optim.Observation, in trial index order
+    spec: OptimizerSpec
+    observations: list[Observation]  # in trial index order
     pending: np.ndarray | None  # (k, dim)
     observed_ids: tuple[int, ...]  # trials behind ``observations``
     pending_ids: frozenset[int]  # trials behind ``pending``
 
+    @property
+    def dim(self) -> int:
+        """D, the length of θ."""
+        return self.spec.dim
+
 
 def optimizer_inputs(session: Session, exp: Experiment) -> OptimizerInputs:
     """Completed trials with an objective (executed θ when reported) and pending θ."""
-    from app.optim import Observation
-
     trials = list(
         session.scalars(select(Trial).where(Trial.experiment_id == exp.id).order_by(Trial.index))
     )
@@ -222,24 +240,19 @@ def optimizer_inputs(session: Session, exp: Experiment) -> OptimizerInputs:
             # unknown.
             pending.append(t.theta)
             pending_ids.add(t.id)
-    dim = exp.horizon + int(exp.with_release)
+    spec = optimizer_spec(exp)
     return OptimizerInputs(
-        method=exp.method,
-        dim=dim,
-        seed=exp.seed,
-        kwargs=optimizer_kwargs(exp),
+        spec=spec,
         observations=obs,
-        pending=np.asarray(pending, dtype=np.float64).reshape(-1, dim) if pending else None,
+        pending=np.asarray(pending, dtype=np.float64).reshape(-1, spec.dim) if pending else None,
         observed_ids=tuple(observed_ids),
         pending_ids=frozenset(pending_ids),
     )
 
 
-def build_optimizer(inputs: OptimizerInputs) -> Any:
-    """make_optimizer + observe_many: the optimiser exactly as the database describes it."""
-    from app.optim import make_optimizer
-
-    opt = make_optimizer(inputs.method, inputs.dim, seed=inputs.seed, **inputs.kwargs)
+def rebuild_optimizer(inputs: OptimizerInputs) -> Optimizer:
+    """build_optimizer + observe_many: the optimiser exactly as the database describes it."""
+    opt = build_optimizer(inputs.spec)
     if inputs.observations:
         opt.observe_many(inputs.observations)
     return opt
@@ -254,14 +267,12 @@ def ask(
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """(n, D) suggested θ, and the model's predicted mean/std there (None before a GP).
 
-    ``timings`` (if given) accumulates ``optimizer_s``: the seconds spent in make_optimizer +
+    ``timings`` (if given) accumulates ``optimizer_s``: the seconds spent in build_optimizer +
     observe_many + suggest, i.e. what the raw optimiser costs on this data. ``on_fitted``
     (if given) gets the optimiser after its suggestion (``app.service.compute`` keeps it).
     """
-    from app.optim import OptimError
-
     t0 = time.perf_counter()
-    opt = build_optimizer(inputs)
+    opt = rebuild_optimizer(inputs)
     thetas = np.asarray(opt.suggest(n, pending=inputs.pending), dtype=np.float64).reshape(n, -1)
     if timings is not None:
         timings["optimizer_s"] = timings.get("optimizer_s", 0.0) + time.perf_counter() - t0
@@ -270,8 +281,8 @@ def ask(
     # just fitted for the suggestion is reused and the prediction costs next to nothing.
     n_obs = len(inputs.observations)
     n_pending = 0 if inputs.pending is None else len(inputs.pending)
-    initial_only = n_obs < 2 or n_obs + n_pending + n <= getattr(opt, "n_initial", 0)
-    if hasattr(opt, "predict") and not initial_only:
+    initial_only = n_obs < 2 or n_obs + n_pending + n <= opt.n_initial
+    if isinstance(opt, Surrogate) and not initial_only:
         try:
             mean, std = opt.predict(thetas)
         except (OptimError, ValueError, RuntimeError):

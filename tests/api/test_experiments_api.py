@@ -29,7 +29,10 @@ def test_create_get_list_patch(api):
     assert exp["with_release"] is True and exp["dim"] == 11 and exp["n_initial"] == 12
     assert exp["status"] == "active" and exp["created_by"] == "operator"
     assert exp["objective_unit"] == "score"
+    assert exp["command_hold"] == "zero"  # the default: each row held for its step
     assert api.get_experiment(exp["id"]) == exp
+    ramped = new_exp(api, task="throw", command_hold="linear")
+    assert api.get_experiment(ramped["id"])["command_hold"] == "linear"
     assert exp["id"] in [e["id"] for e in api.list_experiments()]
     out = api.patch_experiment(exp["id"], status="paused", notes="later", budget=40)
     assert (out["status"], out["notes"], out["budget"]) == ("paused", "later", 40)
@@ -65,6 +68,7 @@ def test_create_hardware_experiment_keeps_its_limits(api):
         ({"budget": 0}, 422, "budget"),
         ({"surprise": 1}, 422, "surprise"),
         ({"sim_preset": "nope"}, 422, "sim_preset"),
+        ({"command_hold": "cubic"}, 422, "command_hold"),
         ({"optimizer_settings": {"colour": "red"}}, 422, "colour"),
     ],
 )
@@ -189,9 +193,10 @@ def test_export_csv_and_json(api):
     rows = list(csv.DictReader(io.StringIO(api.export(exp["id"], "csv"))))
     assert [r["status"] for r in rows] == ["completed", "queued"]
     assert float(rows[0]["objective"]) == 1.25 and float(rows[0]["theta_0"]) == 0.3
+    assert {r["command_hold"] for r in rows} == {"zero"}
     assert rows[0]["created_by"] == "operator" and rows[0]["repeats"] == "1.25 m/s by operator"
     data = api.export(exp["id"], "json")
-    assert data["experiment"]["id"] == exp["id"]
+    assert data["experiment"]["id"] == exp["id"] and data["experiment"]["command_hold"] == "zero"
     assert len(data["trials"]) == 2 and len(data["measurements"]) == 1
     err = error_of(api.export, exp["id"], "xml")
     assert err.status == 422

@@ -1,7 +1,7 @@
 """Tokens expire: ``tokens.expires_at`` (NULL: never, e.g. a worker's token made by the CLI).
 
 Revision ID: harden1
-Revises: 0002
+Revises: oneway1
 Create Date: 2026-11-29 17:20:00
 """
 
@@ -13,7 +13,7 @@ import sqlalchemy as sa
 from alembic import op
 
 revision: str = "harden1"
-down_revision: str | None = "0002"
+down_revision: str | None = "oneway1"
 branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None
 
