@@ -57,10 +57,10 @@ def fit_key(inputs: Any) -> str:
     """What a fitted model depends on: method, dim, seed, settings and observations in order."""
     blob = json.dumps(
         [
-            inputs.method,
+            inputs.spec.method,
             inputs.dim,
-            inputs.seed,
-            sorted(inputs.kwargs.items()),
+            inputs.spec.seed,
+            sorted(inputs.spec.kwargs().items()),
             [[list(o.theta), o.value, o.sem] for o in inputs.observations],
         ],
         default=str,
@@ -110,7 +110,7 @@ INLINE_METHODS = frozenset({"random", "cem"})
 
 def inline(inputs: Any) -> bool:
     """Whether this optimiser's work is cheap enough to run in the request's own thread."""
-    return inputs.method in INLINE_METHODS
+    return inputs.spec.method in INLINE_METHODS
 
 
 def _warm() -> None:

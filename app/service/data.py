@@ -227,7 +227,7 @@ def model_view(opt: Any, inputs: Any, incumbent: list[float], n_points: int) -> 
     ``model_insight``, run where the optimiser is)."""
     none: dict[str, Any] = {"lengthscales": None, "slices": []}
     if not isinstance(opt, Surrogate):
-        return {**none, "message": f"{inputs.method} has no surrogate model"}
+        return {**none, "message": f"{inputs.spec.method} has no surrogate model"}
     if len(inputs.observations) < 2:
         return {**none, "message": "the GP needs at least 2 observations"}
     try:
