@@ -81,7 +81,6 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
         )
     for hook in list(app.state.startup_hooks):
         await _call(hook, app)
-    app.state.compute.warm()
     sweeper = asyncio.create_task(_sweep_forever(app))
     try:
         yield
