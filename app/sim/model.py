@@ -14,8 +14,8 @@ The throw's grasp (``GripperParams.grasp``): ``"friction"`` builds two sliding f
 (friction 0.7; the published inner 0.6 box optional) squeeze the free cube, driven by one more
 actuator (``gripper``, after the 12 chambers; command 0 = open, any command ≥ ``GRIP_CLOSED_FROM``
 = closed, finger force limited to ±``pad_force_n``), with touch sensors on the pads and the
-published model's ``impratio``
-10 and 5 no-slip iterations; ``"weld"`` welds the cube to the palm (equality ``grip``) instead.
+published model's ``impratio`` 10 (its 5 no-slip iterations are optional, off by default);
+``"weld"`` welds the cube to the palm (equality ``grip``) instead.
 """
 
 from __future__ import annotations
