@@ -11,7 +11,11 @@ from __future__ import annotations
 from pathlib import Path
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
+<<<<<<< HEAD
 PAGES = ("sim", "optim", "service", "load", "workers", "dashboard")
+=======
+PAGES = ("sim", "paper", "optim", "service", "workers", "dashboard")
+>>>>>>> paper
 
 
 def demote(text: str) -> str:

@@ -11,10 +11,11 @@ Tasks add their scene: ``throw`` a gripper and a 0.25 kg cube, ``hammer`` a 2 kg
 force plate with a touch sensor, ``tip_speed`` nothing (the bare arm, as on the real robot).
 
 The throw's grasp (``GripperParams.grasp``): ``"friction"`` builds two sliding fingers whose pads
-(friction 0.7 / 0.6) squeeze the free cube, driven by one more actuator (``gripper``, after the
-12 chambers; command 0 = open, any command ≥ ``GRIP_CLOSED_FROM`` = closed, finger force limited
-to ±``pad_force_n``), with touch sensors on the pads and the published model's ``impratio``
-10 and 5 no-slip iterations; ``"weld"`` welds the cube to the palm (equality ``grip``) instead.
+(friction 0.7; the published inner 0.6 box optional) squeeze the free cube, driven by one more
+actuator (``gripper``, after the 12 chambers; command 0 = open, any command ≥ ``GRIP_CLOSED_FROM``
+= closed, finger force limited to ±``pad_force_n``), with touch sensors on the pads and the
+published model's ``impratio`` 10 (its 5 no-slip iterations are optional, off by default);
+``"weld"`` welds the cube to the palm (equality ``grip``) instead.
 """
 
 from __future__ import annotations
@@ -393,9 +394,9 @@ def _add_fingers(palm: mujoco.MjsBody, params: ArmParams, finger_len: float) -> 
             (0, 0),
             pos=[sign * 0.012, 0.0, gp.palm_length_m + finger_len / 2.0],
         )
-        for k, (z, mu) in enumerate(
-            ((origin_z, gp.pad_friction[0]), (origin_z - 2.0 * PAD_HALF[2], gp.pad_friction[1]))
-        ):
+        # pad k lies k pad lengths nearer the palm than pad 1
+        for k, mu in enumerate(gp.pad_friction):
+            z = origin_z - 2.0 * k * PAD_HALF[2]
             pad = _geom(
                 finger,
                 f"{side}_pad{k + 1}",
