@@ -11,11 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
-<<<<<<< HEAD
-PAGES = ("sim", "optim", "service", "load", "workers", "dashboard")
-=======
-PAGES = ("sim", "paper", "optim", "service", "workers", "dashboard")
->>>>>>> paper
+PAGES = ("sim", "paper", "optim", "service", "load", "workers", "dashboard")
 
 
 def demote(text: str) -> str:
