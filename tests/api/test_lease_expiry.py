@@ -23,9 +23,7 @@ def worker(module_server):
     return module_server.client("worker")
 
 
-def new_exp(op, **fields):
-    spec = {"name": "lease", "task": "tip_speed", "levels": 3, "method": "random", **fields}
-    return op.create_experiment(**spec)
+NEW_EXP = {"name": "lease"}  # this module's experiments (see tests/conftest.py new_exp)
 
 
 def wait_status(op, trial_id, status, timeout_s=20.0):
@@ -38,7 +36,7 @@ def wait_status(op, trial_id, status, timeout_s=20.0):
     raise AssertionError(f"trial {trial_id} is {t['status']}, not {status}: {t['status_reason']}")
 
 
-def test_the_background_sweep_requeues_a_dead_workers_trial(op, worker):
+def test_the_background_sweep_requeues_a_dead_workers_trial(op, worker, new_exp):
     exp = new_exp(op)
     [t] = op.suggest(exp["id"])
     [c1] = worker.claim("w-dead", "sim")

@@ -16,7 +16,7 @@ from app.policy import Policy, PressureLimits, schedule_hash
 from ..conftest import claim_until_empty
 
 SERVER_ENV = {"HANDFUL_LEASE_SECONDS": "60", "HANDFUL_MAX_ATTEMPTS": "2"}
-LIMITS = {"nominal_pa": 100_000.0, "max_step_pa": 30_000.0, "source_pa": 205_000.0}
+HARDWARE_LIMITS = {"nominal_pa": 100_000.0, "max_step_pa": 30_000.0, "source_pa": 205_000.0}
 
 
 @pytest.fixture
@@ -39,18 +39,10 @@ def _nothing_left_queued(module_server):
             op.patch_experiment(exp["id"], status="archived")
 
 
-def new_exp(op, **fields):
-    spec = {
-        "name": "w",
-        "task": "tip_speed",
-        "levels": 3,
-        "method": "random",
-        "sim_preset": "fast",
-        **fields,
-    }
-    if spec.get("target") == "hardware":
-        spec.setdefault("limits", LIMITS)
-    return op.create_experiment(**spec)
+NEW_EXP = {
+    "name": "w",
+    "sim_preset": "fast",
+}  # this module's experiments (see tests/conftest.py new_exp)
 
 
 def npz_bytes(**arrays) -> bytes:
@@ -65,7 +57,7 @@ def error_of(call, *args, **kwargs) -> HandfulAPIError:
     return info.value
 
 
-def test_sim_claim_heartbeat_result(op, worker):
+def test_sim_claim_heartbeat_result(op, worker, new_exp):
     exp = new_exp(op)
     [trial] = op.suggest(exp["id"])
     [c] = worker.claim("w-1", "sim", max_trials=4)
@@ -108,7 +100,7 @@ def test_sim_claim_heartbeat_result(op, worker):
     assert err.status == 409 and err.code == "lease_lost"
 
 
-def test_bad_results_are_refused_and_store_nothing(op, worker, module_server):
+def test_bad_results_are_refused_and_store_nothing(op, worker, module_server, new_exp):
     exp = new_exp(op)
     a, b = op.suggest(exp["id"], n=2)
     claims = worker.claim("w-1", "sim", max_trials=2)
@@ -135,7 +127,7 @@ def test_bad_results_are_refused_and_store_nothing(op, worker, module_server):
         worker.report_result(tid, lease[tid], fault="test over")
 
 
-def test_executed_schedule_is_what_the_gp_sees(op, worker):
+def test_executed_schedule_is_what_the_gp_sees(op, worker, new_exp):
     exp = new_exp(op)
     [trial] = op.suggest(exp["id"])
     [c] = worker.claim("w-1", "sim")
@@ -155,7 +147,7 @@ def test_executed_schedule_is_what_the_gp_sees(op, worker):
     assert op.model(exp["id"])["incumbent_theta"] == t["executed_theta"]
 
 
-def test_sim_fault_fails_hardware_fault_needs_review(op, worker):
+def test_sim_fault_fails_hardware_fault_needs_review(op, worker, new_exp):
     sim = new_exp(op)
     [st] = op.suggest(sim["id"])
     [c] = worker.claim("w-1", "sim")
@@ -179,7 +171,7 @@ def test_sim_fault_fails_hardware_fault_needs_review(op, worker):
     assert op.get_trial(ht["id"])["status"] == "completed"
 
 
-def test_hardware_gate_confirmation_and_changed_schedule(op, worker, module_server):
+def test_hardware_gate_confirmation_and_changed_schedule(op, worker, module_server, new_exp):
     hw = new_exp(op, target="hardware")
     a, b, c3 = op.suggest(hw["id"], n=3)
     assert worker.claim("hw", "hardware", max_trials=3) == []  # none confirmed
@@ -212,7 +204,7 @@ def test_hardware_gate_confirmation_and_changed_schedule(op, worker, module_serv
     worker.report_result(a["id"], claims[0]["lease_id"], fault="stop")
 
 
-def test_executed_schedule_beyond_limits_needs_review(op, worker):
+def test_executed_schedule_beyond_limits_needs_review(op, worker, new_exp):
     hw = new_exp(op, target="hardware")
     [t] = op.suggest(hw["id"])
     op.confirm_trial(t["id"], t["schedule_hash"])
@@ -226,7 +218,7 @@ def test_executed_schedule_beyond_limits_needs_review(op, worker):
     assert out["executed_pressure_schedule_pa"][3][5] == 150_000.0
 
 
-def test_abort_revokes_the_lease_and_refuses_the_late_result(op, worker):
+def test_abort_revokes_the_lease_and_refuses_the_late_result(op, worker, new_exp):
     exp = new_exp(op)
     [t] = op.suggest(exp["id"])
     [c] = worker.claim("w", "sim")
@@ -238,14 +230,14 @@ def test_abort_revokes_the_lease_and_refuses_the_late_result(op, worker):
     assert "trial.abort" in actions and "lease.revoked" in actions
 
 
-def test_concurrent_claims_never_hand_out_a_trial_twice(op, module_server):
+def test_concurrent_claims_never_hand_out_a_trial_twice(op, module_server, new_exp):
     exp = new_exp(op)
     trials = op.suggest(exp["id"], n=8)
     got = claim_until_empty(module_server, n_workers=4)
     assert sorted(got) == sorted(t["id"] for t in trials)
 
 
-def test_base64_trajectory_roundtrip(op, worker):
+def test_base64_trajectory_roundtrip(op, worker, new_exp):
     exp = new_exp(op)
     [t] = op.suggest(exp["id"])
     [c] = worker.claim("w", "sim")
@@ -257,7 +249,7 @@ def test_base64_trajectory_roundtrip(op, worker):
     assert base64.b64encode(worker_npz)
 
 
-def test_resolve_complete_needs_a_measurement_and_fail_ends_it(op, worker):
+def test_resolve_complete_needs_a_measurement_and_fail_ends_it(op, worker, new_exp):
     hw = new_exp(op, target="hardware")
     a, b = op.suggest(hw["id"], n=2)
     for t in (a, b):
@@ -277,7 +269,7 @@ def test_resolve_complete_needs_a_measurement_and_fail_ends_it(op, worker):
     assert any(x["action"] == "trial.resolve" and x["actor"] == "operator" for x in audit)
 
 
-def test_hardware_throw_waits_for_the_operators_tape_measure(op, worker):
+def test_hardware_throw_waits_for_the_operators_tape_measure(op, worker, new_exp):
     hw = new_exp(op, target="hardware", task="throw", objective_unit="m")
     [t] = op.suggest(hw["id"])
     op.confirm_trial(t["id"], t["schedule_hash"])

@@ -7,12 +7,13 @@ on a free 127.0.0.1 port.
 
 from __future__ import annotations
 
-import socket
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+
+from app.devserver import free_port
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = [
@@ -26,18 +27,12 @@ CHROMIUM_ARGS = [
 SCREENSHOTS = Path(__file__).resolve().parents[2] / "test-output" / "screenshots"
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 @pytest.fixture
 def dashboard_server_factory(server_factory: Callable[..., Any]) -> Callable[..., Any]:
     """Start servers with the dashboard mounted and viser on a free loopback port."""
 
     def start(**env: str) -> Any:
-        return server_factory(dashboard=True, env={"HANDFUL_VISER_PORT": str(_free_port()), **env})
+        return server_factory(dashboard=True, env={"HANDFUL_VISER_PORT": str(free_port()), **env})
 
     return start
 
