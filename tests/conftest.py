@@ -19,6 +19,9 @@ Fixtures (reuse them; they are documented for the workers and dashboard tests):
   (and ``SERVER_DASHBOARD``) globals; for worker/lease tests.
 - ``api`` / ``viewer_api`` / ``worker_api`` / ``anon_api``: ``HandfulClient`` on
   ``live_server`` with the operator / viewer / worker token / no token.
+- ``new_exp(client, **fields)``: an experiment through the API (module defaults: ``NEW_EXP``).
+- ``db``, ``make_experiment``, ``make_trial``: the service layer over a migrated SQLite file.
+- ``dashboard_server``, ``browser``, ``page``, ``screenshots``: the dashboard and Chromium.
 """
 
 from __future__ import annotations
@@ -272,3 +275,67 @@ def make_trial(db: Database) -> Callable[..., int]:
         return t.id
 
     return factory
+
+
+# --- the dashboard and headless Chromium (tests/web, tests/viz) ---------------------------------
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
+SCREENSHOTS = Path(__file__).resolve().parents[2] / "test-output" / "screenshots"
+
+
+@pytest.fixture
+def dashboard_server_factory(server_factory: Callable[..., Any]) -> Callable[..., Any]:
+    """Start servers with the dashboard mounted and viser on a free loopback port."""
+
+    def start(**env: str) -> Any:
+        return server_factory(dashboard=True, env={"HANDFUL_VISER_PORT": str(free_port()), **env})
+
+    return start
+
+
+@pytest.fixture
+def dashboard_server(dashboard_server_factory: Callable[..., Any]) -> Any:
+    """A server with the dashboard mounted and viser on its own free loopback port."""
+    return dashboard_server_factory()
+
+
+@pytest.fixture(scope="session")
+def browser() -> Iterator[Any]:
+    """Headless Debian Chromium driven by Playwright (no browser download)."""
+    from playwright.sync_api import sync_playwright
+
+    if not Path(CHROMIUM).exists():
+        raise RuntimeError(f"{CHROMIUM} is missing: apt-get install -y chromium (scripts/dev.sh)")
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+@pytest.fixture
+def page(browser: Any) -> Iterator[Any]:
+    """A fresh 1280×800 tab (own storage); page errors fail the test at teardown."""
+    context = browser.new_context(viewport={"width": 1280, "height": 800})
+    tab = context.new_page()
+    errors: list[str] = []
+    tab.on("pageerror", lambda exc: errors.append(str(exc)))
+    tab.set_default_timeout(60_000)  # a loaded 2-core CI machine renders slowly
+    yield tab
+    context.close()
+    assert not errors, f"JavaScript errors on the page: {errors}"
+
+
+@pytest.fixture(scope="session")
+def screenshots() -> Path:
+    """Where page screenshots go (look at them: passing is not looking right)."""
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    return SCREENSHOTS
