@@ -89,8 +89,8 @@ def export_csv(session: Session, experiment_id: int) -> str:
     for t in trials:
         d = t.model_dump(mode="json")
         row = ["" if d[f] is None else d[f] for f in CSV_FIELDS]
-        ex = t.executed_theta or [""] * dim
-        w.writerow([*row, *(repr(v) for v in t.theta), *(v if v == "" else repr(v) for v in ex)])
+        ex = [repr(v) for v in t.executed_theta] if t.executed_theta else [""] * dim
+        w.writerow([*row, *(repr(v) for v in t.theta), *ex])
     return buf.getvalue()
 
 
@@ -152,7 +152,11 @@ def model_insight(session: Session, experiment_id: int, *, n_points: int = 41) -
     exp = get_experiment(session, experiment_id)
     inputs = optimizer_inputs(session, exp)
     obs = inputs.observations
-    base = {"experiment_id": exp.id, "method": exp.method, "n_observations": len(obs)}
+    base: dict[str, Any] = {
+        "experiment_id": exp.id,
+        "method": exp.method,
+        "n_observations": len(obs),
+    }
     if not obs:
         return ModelRead(
             **base,
@@ -174,7 +178,7 @@ def model_insight(session: Session, experiment_id: int, *, n_points: int = 41) -
     ).first()
     assert best is not None
     inc = list(best.executed_theta if best.executed_theta is not None else best.theta)
-    head = dict(
+    head: dict[str, Any] = dict(
         base, incumbent_theta=inc, incumbent_objective=best.objective, incumbent_trial_id=best.id
     )
     opt = rebuild_optimizer(inputs)
