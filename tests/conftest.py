@@ -218,6 +218,18 @@ def anon_api(live_server: ServerHandle) -> HandfulClient:
 
 
 @pytest.fixture
+def op(module_server: ServerHandle) -> HandfulClient:
+    """The operator's client on this module's ``module_server``."""
+    return module_server.client("operator")
+
+
+@pytest.fixture
+def worker(module_server: ServerHandle) -> HandfulClient:
+    """A worker's client on this module's ``module_server``."""
+    return module_server.client("worker")
+
+
+@pytest.fixture
 def new_exp(request: pytest.FixtureRequest) -> Callable[..., dict]:
     """``new_exp(client, **fields)``: create an experiment through the API and return it: a
     sim tip_speed experiment with P = 3 and random search, named "exp", updated by the test

@@ -13,16 +13,6 @@ from app.client import HandfulAPIError
 SERVER_ENV = {"HANDFUL_LEASE_SECONDS": "1.5", "HANDFUL_MAX_ATTEMPTS": "2"}
 
 
-@pytest.fixture
-def op(module_server):
-    return module_server.client("operator")
-
-
-@pytest.fixture
-def worker(module_server):
-    return module_server.client("worker")
-
-
 NEW_EXP = {"name": "lease"}  # this module's experiments (see tests/conftest.py new_exp)
 
 

@@ -19,16 +19,6 @@ SERVER_ENV = {"HANDFUL_LEASE_SECONDS": "60", "HANDFUL_MAX_ATTEMPTS": "2"}
 HARDWARE_LIMITS = {"nominal_pa": 100_000.0, "max_step_pa": 30_000.0, "source_pa": 205_000.0}
 
 
-@pytest.fixture
-def op(module_server):
-    return module_server.client("operator")
-
-
-@pytest.fixture
-def worker(module_server):
-    return module_server.client("worker")
-
-
 @pytest.fixture(autouse=True)
 def _nothing_left_queued(module_server):
     """Each test starts and ends with no claimable trial (claims take the oldest first)."""
@@ -67,14 +57,13 @@ def test_sim_claim_heartbeat_result(op, worker, new_exp):
     hb = worker.heartbeat(c["lease_id"])
     assert hb["status"] == "active" and hb["lease_expires_at"] >= c["lease_expires_at"]
     traj = npz_bytes(time_s=np.linspace(0, 5, 11), tip_speed_m_s=np.full(11, 2.5))
-    out = worker.report_result(
-        trial["id"],
-        c["lease_id"],
-        executed_pressure_schedule_pa=trial["pressure_schedule_pa"],
-        objective=2.5,
-        trajectory_npz=traj,
-        summary={"wall_s": 0.2},
-    )
+    report = {
+        "executed_pressure_schedule_pa": trial["pressure_schedule_pa"],
+        "objective": 2.5,
+        "trajectory_npz": traj,
+        "summary": {"wall_s": 0.2},
+    }
+    out = worker.report_result(trial["id"], c["lease_id"], **report)
     t = out["trial"]
     assert t["status"] == "completed" and t["objective"] == 2.5 and t["has_trajectory"]
     assert t["executed_theta"] == trial["theta"]  # it ran the plan: the planned θ
@@ -84,15 +73,7 @@ def test_sim_claim_heartbeat_result(op, worker, new_exp):
     ]
     assert op.trajectory(trial["id"])["tip_speed_m_s"] == [2.5] * 11
     # idempotent per lease: the same report again gives the same reply and stores nothing
-    again = worker.report_result(
-        trial["id"],
-        c["lease_id"],
-        executed_pressure_schedule_pa=trial["pressure_schedule_pa"],
-        objective=2.5,
-        trajectory_npz=traj,
-        summary={"wall_s": 0.2},
-    )
-    assert again == out
+    assert worker.report_result(trial["id"], c["lease_id"], **report) == out
     assert op.get_trial(trial["id"])["n_measurements"] == 1
     err = error_of(worker.report_result, trial["id"], c["lease_id"], objective=3.0)
     assert err.status == 409 and "different result" in err.detail
