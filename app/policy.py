@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal, get_args
 
 import numpy as np
+import numpy.typing as npt
 
 N_CHAMBERS = 12
 N_PAIRED = 6
@@ -136,7 +137,7 @@ class PressureLimits:
 
 
 def check_schedule(
-    pressure_schedule_pa: np.ndarray,
+    pressure_schedule_pa: npt.ArrayLike,
     *,
     lower_pa: np.ndarray | float = 0.0,
     upper_pa: np.ndarray | float = SIM_MAX_PRESSURE_PA,
@@ -318,10 +319,12 @@ class Policy:
         )
         return self._bin_centres(a, None if release is None else np.int64(release - 1))
 
-    def _bin_centres(self, actions: np.ndarray, release_index: np.ndarray | None) -> np.ndarray:
+    def _bin_centres(
+        self, actions: npt.ArrayLike, release_index: npt.ArrayLike | None
+    ) -> np.ndarray:
         """(..., H) action indices and (...) 0-based release indices → (..., D) θ at the
         centres of their bins."""
-        theta = (actions.astype(np.float64) + 0.5) / self.n_actions
+        theta = (np.asarray(actions).astype(np.float64) + 0.5) / self.n_actions
         if release_index is None:
             return theta
         release = (np.asarray(release_index, dtype=np.float64) + 0.5) / self.horizon
@@ -452,7 +455,7 @@ class Policy:
         return planned.copy() if same else ran
 
 
-def schedule_hash(pressure_schedule_pa: np.ndarray, release_step: int | None = None) -> str:
+def schedule_hash(pressure_schedule_pa: npt.ArrayLike, release_step: int | None = None) -> str:
     """SHA-256 (hex) of a schedule as the robot would run it: what an operator's confirmation binds.
 
     The schedule (H, 12) Pa is rounded to 1 mPa before hashing, so JSON round trips of the

@@ -33,6 +33,7 @@ case "$job" in
   test)
     .venv/bin/ruff check app tests benchmarks
     .venv/bin/ruff format --check app tests benchmarks
+    .venv/bin/mypy  # app/service, app/api, app/policy.py ([tool.mypy] in pyproject.toml)
     # pytest exits 5 when it collects nothing: that is a failure here too.
     exec .venv/bin/python -m pytest "$@" ;;
   *) echo "unknown job '$job' (use demo, test or setup)" >&2; exit 2 ;;

@@ -19,6 +19,9 @@ Fixtures (reuse them; they are documented for the workers and dashboard tests):
   (and ``SERVER_DASHBOARD``) globals; for worker/lease tests.
 - ``api`` / ``viewer_api`` / ``worker_api`` / ``anon_api``: ``HandfulClient`` on
   ``live_server`` with the operator / viewer / worker token / no token.
+- ``new_exp(client, **fields)``: an experiment through the API (module defaults: ``NEW_EXP``).
+- ``db``, ``make_experiment``, ``make_trial``: the service layer over a migrated SQLite file.
+- ``dashboard_server``, ``browser``, ``page``, ``screenshots``: the dashboard and Chromium.
 """
 
 from __future__ import annotations
@@ -28,16 +31,22 @@ import threading
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from app.client import HandfulClient
 from app.db.migrate import upgrade
+from app.db.models import Trial
 from app.db.session import Database
 from app.devserver import ServerProcess, free_port
-from app.service.auth import add_user, create_token
+from app.policy import policy_dim
+from app.service import experiments, trials
+from app.service.auth import Actor, add_user, create_token
+from app.service.schemas import ExperimentCreate
 
 ROLES = ("operator", "viewer", "worker")
+OPERATOR = Actor("olivia", "operator")  # the actor the service-level factories act as
 PASSWORD = "correct horse battery"  # every fixture user's password
 
 
@@ -206,3 +215,139 @@ def worker_api(live_server: ServerHandle) -> HandfulClient:
 @pytest.fixture
 def anon_api(live_server: ServerHandle) -> HandfulClient:
     return live_server.client(None)
+
+
+@pytest.fixture
+def op(module_server: ServerHandle) -> HandfulClient:
+    """The operator's client on this module's ``module_server``."""
+    return module_server.client("operator")
+
+
+@pytest.fixture
+def worker(module_server: ServerHandle) -> HandfulClient:
+    """A worker's client on this module's ``module_server``."""
+    return module_server.client("worker")
+
+
+@pytest.fixture
+def new_exp(request: pytest.FixtureRequest) -> Callable[..., dict]:
+    """``new_exp(client, **fields)``: create an experiment through the API and return it: a
+    sim tip_speed experiment with P = 3 and random search, named "exp", updated by the test
+    module's ``NEW_EXP`` dict (e.g. ``{"sim_preset": "fast"}``), then by ``fields``. A
+    hardware experiment without limits gets the module's ``HARDWARE_LIMITS`` if it has them."""
+    module_defaults = getattr(request.module, "NEW_EXP", {})
+    hardware_limits = getattr(request.module, "HARDWARE_LIMITS", None)
+
+    def make(client: HandfulClient, **fields: object) -> dict:
+        spec = {"name": "exp", "task": "tip_speed", "levels": 3, "method": "random"}
+        spec = {**spec, **module_defaults, **fields}
+        if spec.get("target") == "hardware" and hardware_limits is not None:
+            spec.setdefault("limits", hardware_limits)
+        return client.create_experiment(**spec)
+
+    return make
+
+
+@pytest.fixture
+def db(migrated_db: str) -> Iterator[Database]:
+    """The service's Database over a freshly migrated SQLite file."""
+    database = Database(migrated_db)
+    yield database
+    database.dispose()
+
+
+@pytest.fixture
+def make_experiment(db: Database) -> Callable[..., int]:
+    """Create an experiment (sim tip_speed, P=3, random search by default); returns its id."""
+
+    def factory(**fields: Any) -> int:
+        spec = {"name": "test", "task": "tip_speed", "levels": 3, "method": "random", **fields}
+        if spec.get("target") == "hardware" and "limits" not in spec:
+            spec["limits"] = {"nominal_pa": 100_000.0, "max_step_pa": 30_000.0}
+        with db.write() as s:
+            return experiments.create_experiment(s, ExperimentCreate(**spec), actor=OPERATOR).id
+
+    return factory
+
+
+@pytest.fixture
+def make_trial(db: Database) -> Callable[..., int]:
+    """Attach a trial with θ (default all 0.5) and force its status; returns its id."""
+
+    def factory(experiment_id: int, status: str | None = None, theta: Any = None) -> int:
+        with db.write() as s:
+            exp = experiments.get_experiment(s, experiment_id)
+            dim = policy_dim(exp.horizon, exp.with_release)
+            t = trials.attach(s, experiment_id, theta or [0.5] * dim, note="", actor=OPERATOR)
+        if status is not None:
+            with db.write() as s:
+                row = s.get(Trial, t.id)
+                assert row is not None
+                row.status = status
+        return t.id
+
+    return factory
+
+
+# --- the dashboard and headless Chromium (tests/web, tests/viz) ---------------------------------
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
+SCREENSHOTS = Path(__file__).resolve().parents[2] / "test-output" / "screenshots"
+
+
+@pytest.fixture
+def dashboard_server_factory(server_factory: Callable[..., Any]) -> Callable[..., Any]:
+    """Start servers with the dashboard mounted and viser on a free loopback port."""
+
+    def start(**env: str) -> Any:
+        return server_factory(dashboard=True, env={"HANDFUL_VISER_PORT": str(free_port()), **env})
+
+    return start
+
+
+@pytest.fixture
+def dashboard_server(dashboard_server_factory: Callable[..., Any]) -> Any:
+    """A server with the dashboard mounted and viser on its own free loopback port."""
+    return dashboard_server_factory()
+
+
+@pytest.fixture(scope="session")
+def browser() -> Iterator[Any]:
+    """Headless Debian Chromium driven by Playwright (no browser download)."""
+    from playwright.sync_api import sync_playwright
+
+    if not Path(CHROMIUM).exists():
+        raise RuntimeError(f"{CHROMIUM} is missing: apt-get install -y chromium (scripts/dev.sh)")
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+@pytest.fixture
+def page(browser: Any) -> Iterator[Any]:
+    """A fresh 1280×800 tab (own storage); page errors fail the test at teardown."""
+    context = browser.new_context(viewport={"width": 1280, "height": 800})
+    tab = context.new_page()
+    errors: list[str] = []
+    tab.on("pageerror", lambda exc: errors.append(str(exc)))
+    tab.set_default_timeout(60_000)  # a loaded 2-core CI machine renders slowly
+    yield tab
+    context.close()
+    assert not errors, f"JavaScript errors on the page: {errors}"
+
+
+@pytest.fixture(scope="session")
+def screenshots() -> Path:
+    """Where page screenshots go (look at them: passing is not looking right)."""
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    return SCREENSHOTS

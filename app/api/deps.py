@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator, Awaitable, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from typing import Annotated
 
 from fastapi import Depends, Path, Request
@@ -128,11 +128,11 @@ WorkerOrOperator = Annotated[
 ]
 
 
-def json_response(model: BaseModel | list[BaseModel], status_code: int = 200) -> Response:
+def json_response(model: BaseModel | Sequence[BaseModel], status_code: int = 200) -> Response:
     """Serialise a reply once with pydantic (FastAPI would validate and encode it again);
     routes using this declare ``response_model`` for the OpenAPI schema."""
-    if isinstance(model, list):
-        body = b"[" + b",".join(m.model_dump_json().encode() for m in model) + b"]"
-    else:
+    if isinstance(model, BaseModel):
         body = model.model_dump_json().encode()
+    else:
+        body = b"[" + b",".join(m.model_dump_json().encode() for m in model) + b"]"
     return Response(body, status_code=status_code, media_type="application/json")

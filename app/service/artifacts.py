@@ -165,7 +165,7 @@ def npz_to_json(path_or_bytes: Path | bytes) -> dict[str, Any]:
         for k in npz.files:
             a = np.asarray(npz[k])
             if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
-                out[k] = np.where(np.isfinite(a), a, None).tolist()
+                out[k] = np.where(np.isfinite(a), a.astype(object), np.full(a.shape, None)).tolist()
             else:
                 out[k] = a.tolist()
     return out

@@ -189,7 +189,11 @@ def model_insight(
     exp = get_experiment(session, experiment_id)
     inputs = optimizer_inputs(session, exp)
     obs = inputs.observations
-    base = {"experiment_id": exp.id, "method": exp.method, "n_observations": len(obs)}
+    base: dict[str, Any] = {
+        "experiment_id": exp.id,
+        "method": exp.method,
+        "n_observations": len(obs),
+    }
     if not obs:
         return ModelRead(
             **base,
@@ -210,9 +214,10 @@ def model_insight(
         .order_by(Trial.objective.desc(), Trial.index)
     ).first()
     assert best is not None
-    theta = best.executed_theta if best.executed_theta is not None else best.theta
-    inc = [float(v) for v in theta]
-    head = dict(
+    inc = [
+        float(v) for v in (best.executed_theta if best.executed_theta is not None else best.theta)
+    ]
+    head: dict[str, Any] = dict(
         base, incumbent_theta=inc, incumbent_objective=best.objective, incumbent_trial_id=best.id
     )
     if viewer is None:

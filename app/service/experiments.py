@@ -114,7 +114,7 @@ def create_experiment(session: Session, spec: ExperimentCreate, *, actor: Actor)
             raise InvalidInput(f"limits.nominal_pa needs 1 or 12 values, got {len(nominal)}")
         try:
             limits = PressureLimits(
-                nominal_pa=tuple(nominal) if isinstance(nominal, list) else nominal,
+                nominal_pa=tuple(nominal) if isinstance(nominal, list) else (nominal,),
                 max_step_pa=spec.limits.max_step_pa,
                 source_pa=spec.limits.source_pa,
             )
@@ -213,7 +213,7 @@ def _stats(session: Session, ids: list[int]) -> tuple[dict[int, dict[str, int]],
         .order_by(Trial.experiment_id, Trial.objective.desc(), Trial.index)
     ).all()
     for eid, tid, obj in rows2:
-        if eid not in best:
+        if eid not in best and obj is not None:  # the query keeps only objectives
             best[eid] = (tid, obj)
     return counts, best
 

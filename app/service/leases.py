@@ -196,13 +196,15 @@ def claim(
     actor: Actor,
     lease_seconds: float,
     max_attempts: int,
+    now: datetime | None = None,
 ) -> list[ClaimRead]:
     """Hand up to ``max_trials`` queued trials of ``target`` to a worker, each under a lease.
 
     Atomic: the caller's write session holds the write lock (SQLite) or row locks (SKIP
-    LOCKED, PostgreSQL) from the first read, so no trial is handed out twice.
+    LOCKED, PostgreSQL) from the first read, so no trial is handed out twice. ``now``: the
+    clock (default: the wall clock), as for ``sweep_expired``.
     """
-    now = utcnow()
+    now = now or utcnow()
     sweep_expired(session, max_attempts=max_attempts, now=now)
     q = (
         select(Trial)
@@ -289,11 +291,18 @@ def _lost(lease: Lease, trial: Trial | None) -> LeaseLost:
 
 
 def heartbeat(
-    session: Session, lease_id: str, *, actor: Actor, lease_seconds: float, max_attempts: int
+    session: Session,
+    lease_id: str,
+    *,
+    actor: Actor,
+    lease_seconds: float,
+    max_attempts: int,
+    now: datetime | None = None,
 ) -> LeaseRead:
     """Extend an active lease by ``lease_seconds``. LeaseLost if it expired (what the sweep
-    did is kept: LeaseLost keeps the transaction's changes)."""
-    now = utcnow()
+    did is kept: LeaseLost keeps the transaction's changes). ``now``: the clock (default: the
+    wall clock)."""
+    now = now or utcnow()
     sweep_expired(session, max_attempts=max_attempts, now=now)
     lease = _get_lease(session, lease_id, actor)
     if lease.status != "active":

@@ -272,7 +272,7 @@ class PreviewJob:
         return PreviewJobRead(
             job_id=self.job_id,
             trial_id=self.trial_id,
-            status=self.status,  # type: ignore[arg-type]
+            status=self.status,
             progress=self.progress,
             error=self.error,
             predicted_tip_speed=self.result.get("predicted_tip_speed"),

@@ -13,18 +13,13 @@ import pytest
 from app.client import HandfulAPIError
 
 
-def new_exp(api, **fields):
-    spec = {"name": "exp", "task": "tip_speed", "levels": 3, "method": "random", **fields}
-    return api.create_experiment(**spec)
-
-
 def error_of(call, *args, **kwargs) -> HandfulAPIError:
     with pytest.raises(HandfulAPIError) as info:
         call(*args, **kwargs)
     return info.value
 
 
-def test_create_get_list_patch(api):
+def test_create_get_list_patch(api, new_exp):
     exp = new_exp(api, name="throwing", task="throw", levels=5, budget=30, notes="first")
     assert exp["with_release"] is True and exp["dim"] == 11 and exp["n_initial"] == 12
     assert exp["status"] == "active" and exp["created_by"] == "operator"
@@ -41,7 +36,7 @@ def test_create_get_list_patch(api):
     assert {"experiment.create", "experiment.status", "experiment.budget"} <= actions
 
 
-def test_create_hardware_experiment_keeps_its_limits(api):
+def test_create_hardware_experiment_keeps_its_limits(api, new_exp):
     exp = new_exp(
         api,
         target="hardware",
@@ -72,7 +67,7 @@ def test_create_hardware_experiment_keeps_its_limits(api):
         ({"optimizer_settings": {"colour": "red"}}, 422, "colour"),
     ],
 )
-def test_create_refuses_bad_input(api, fields, status, words):
+def test_create_refuses_bad_input(api, fields, status, words, new_exp):
     err = error_of(new_exp, api, **fields)
     assert err.status == status
     assert words in json.dumps(err.detail)
@@ -100,7 +95,7 @@ def test_unknown_ids_are_404(api):
     assert error_of(api.patch_experiment, 987_654, notes="x").status == 404
 
 
-def test_suggest_queues_sim_trials_and_respects_budget_and_status(api):
+def test_suggest_queues_sim_trials_and_respects_budget_and_status(api, new_exp):
     exp = new_exp(api, budget=3)
     trials = api.suggest(exp["id"], n=2)
     assert [t["index"] for t in trials] == [1, 2]
@@ -115,7 +110,7 @@ def test_suggest_queues_sim_trials_and_respects_budget_and_status(api):
     assert error_of(api.suggest, exp["id"], n=0).status == 422
 
 
-def test_hardware_suggestions_await_confirmation(api):
+def test_hardware_suggestions_await_confirmation(api, new_exp):
     exp = new_exp(api, target="hardware", limits={"nominal_pa": 100_000.0})
     [trial] = api.suggest(exp["id"])
     assert trial["status"] == "awaiting_confirmation"
@@ -123,7 +118,7 @@ def test_hardware_suggestions_await_confirmation(api):
     assert all(70_000.0 - 1e-6 <= p <= 130_000.0 + 1e-6 for row in sched for p in row)
 
 
-def test_bo_suggestion_stores_predicted_mean_and_std(api):
+def test_bo_suggestion_stores_predicted_mean_and_std(api, new_exp):
     exp = new_exp(
         api, method="bo-lei", n_initial=2, optimizer_settings={"num_restarts": 2, "raw_samples": 64}
     )
@@ -148,7 +143,7 @@ def test_bo_suggestion_stores_predicted_mean_and_std(api):
     assert len(s0["theta"]) == len(s0["mean"]) == len(s0["std"])
 
 
-def test_model_before_data_and_without_a_surrogate(api):
+def test_model_before_data_and_without_a_surrogate(api, new_exp):
     exp = new_exp(api)
     assert api.model(exp["id"])["slices"] == []
     api.import_observations(exp["id"], [{"theta": [0.2] * 10, "objective": 0.5}])
@@ -156,7 +151,7 @@ def test_model_before_data_and_without_a_surrogate(api):
     assert m["incumbent_objective"] == 0.5 and m["lengthscales"] is None
 
 
-def test_attach_checks_theta(api):
+def test_attach_checks_theta(api, new_exp):
     exp = new_exp(api)
     t = api.attach_trial(exp["id"], [0.25] * 10, note="my guess")
     assert t["source"] == "operator" and t["note"] == "my guess" and t["status"] == "queued"
@@ -169,7 +164,7 @@ def test_attach_checks_theta(api):
     assert len(api.list_trials(exp["id"])) == 1  # nothing stored half
 
 
-def test_import_is_all_or_nothing(api):
+def test_import_is_all_or_nothing(api, new_exp):
     exp = new_exp(api)
     good = {"theta": [0.3] * 10, "objective": 1.2}
     err = error_of(
@@ -186,7 +181,7 @@ def test_import_is_all_or_nothing(api):
     assert trials[1]["objective_sem"] == 0.1 and trials[0]["source"] == "import"
 
 
-def test_export_csv_and_json(api):
+def test_export_csv_and_json(api, new_exp):
     exp = new_exp(api)
     api.import_observations(exp["id"], [{"theta": [0.3] * 10, "objective": 1.25}])
     api.suggest(exp["id"], n=1)
@@ -205,7 +200,7 @@ def test_export_csv_and_json(api):
     assert {"trial.import", "experiment.create"} <= {a["action"] for a in everything["audit"]}
 
 
-def test_version_changes_on_every_change(api):
+def test_version_changes_on_every_change(api, new_exp):
     exp = new_exp(api)
     v0 = api.version(exp["id"])
     [t] = api.suggest(exp["id"])
@@ -216,7 +211,7 @@ def test_version_changes_on_every_change(api):
     assert api.version(exp["id"]) == v2  # reading changes nothing
 
 
-def test_no_route_takes_a_token_in_its_url(live_server, api):
+def test_no_route_takes_a_token_in_its_url(live_server, api, new_exp):
     """Tokens travel only in the Authorization header (URLs end up in access logs)."""
     exp = new_exp(api)
     base = f"{live_server.url}/api/experiments/{exp['id']}"

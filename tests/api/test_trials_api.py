@@ -10,17 +10,10 @@ import pytest
 from app.client import HandfulAPIError, HandfulClient
 from app.policy import Policy
 
-
-def new_exp(api, **fields):
-    spec = {
-        "name": "exp",
-        "task": "tip_speed",
-        "levels": 3,
-        "method": "random",
-        "sim_preset": "fast",
-        **fields,
-    }
-    return api.create_experiment(**spec)
+NEW_EXP = {
+    "name": "exp",
+    "sim_preset": "fast",
+}  # this module's experiments (see tests/conftest.py new_exp)
 
 
 def error_of(call, *args, **kwargs) -> HandfulAPIError:
@@ -30,7 +23,7 @@ def error_of(call, *args, **kwargs) -> HandfulAPIError:
 
 
 @pytest.fixture
-def queued(api):
+def queued(api, new_exp):
     exp = new_exp(api)
     [trial] = api.suggest(exp["id"])
     return exp, trial
@@ -142,7 +135,7 @@ def test_bad_measurements_are_refused_whole(api, queued, repeats, words):
     assert t["n_measurements"] == 0 and t["status"] == "queued"
 
 
-def test_negative_distance_is_refused(api):
+def test_negative_distance_is_refused(api, new_exp):
     exp = new_exp(api, task="throw", objective_unit="m")
     [trial] = api.suggest(exp["id"])
     err = error_of(api.add_measurements, trial["id"], [{"value": -2.0, "unit": "m"}])
@@ -193,7 +186,7 @@ def live_server_limit(_server) -> int:
     return Settings().max_body_bytes
 
 
-def test_measuring_a_pending_or_finished_trial_is_illegal(api):
+def test_measuring_a_pending_or_finished_trial_is_illegal(api, new_exp):
     exp = new_exp(api, target="hardware", limits={"nominal_pa": 100_000.0})
     [trial] = api.suggest(exp["id"])
     err = error_of(api.add_measurements, trial["id"], [{"value": 1.0, "unit": "m/s"}])
@@ -203,7 +196,7 @@ def test_measuring_a_pending_or_finished_trial_is_illegal(api):
     assert err.status == 409 and "abandoned" in err.detail
 
 
-def test_fail_abandon_and_illegal_transitions(api):
+def test_fail_abandon_and_illegal_transitions(api, new_exp):
     exp = new_exp(api)
     a, b = api.suggest(exp["id"], n=2)
     t = api.fail_trial(a["id"], "the arm hit the table")
@@ -245,7 +238,7 @@ def test_run_simulates_and_records(api, queued):
     assert err.status == 409 and "completed" in err.detail
 
 
-def test_run_with_a_horizon_the_simulator_cannot_run_is_422_and_leaves_it_queued(api):
+def test_run_with_a_horizon_the_simulator_cannot_run_is_422_and_leaves_it_queued(api, new_exp):
     exp = new_exp(api, horizon=3)  # 5 s / 3 is not a whole number of physics steps
     [trial] = api.suggest(exp["id"])
     err = error_of(api.run_trial, trial["id"])
@@ -253,7 +246,7 @@ def test_run_with_a_horizon_the_simulator_cannot_run_is_422_and_leaves_it_queued
     assert api.get_trial(trial["id"])["status"] == "queued"
 
 
-def test_run_refuses_hardware_and_missing_trajectory_is_404(api):
+def test_run_refuses_hardware_and_missing_trajectory_is_404(api, new_exp):
     exp = new_exp(api, target="hardware", limits={"nominal_pa": 100_000.0})
     [trial] = api.suggest(exp["id"])
     err = error_of(api.run_trial, trial["id"])
@@ -262,7 +255,7 @@ def test_run_refuses_hardware_and_missing_trajectory_is_404(api):
     assert err.status == 404 and "no trajectory" in err.detail
 
 
-def test_preview_runs_exactly_the_trials_schedule(api):
+def test_preview_runs_exactly_the_trials_schedule(api, new_exp):
     exp = new_exp(api, target="hardware", limits={"nominal_pa": 100_000.0})
     [trial] = api.suggest(exp["id"])
     job = api.preview(trial["id"])
@@ -287,7 +280,7 @@ def test_preview_runs_exactly_the_trials_schedule(api):
     assert error_of(api.preview, 99_999_999).status == 404
 
 
-def test_confirm_binds_the_exact_schedule(api):
+def test_confirm_binds_the_exact_schedule(api, new_exp):
     exp = new_exp(api, target="hardware", limits={"nominal_pa": 100_000.0})
     [trial] = api.suggest(exp["id"])
     err = error_of(api.confirm_trial, trial["id"], "0" * 64)

@@ -17,17 +17,7 @@ from app.policy import Policy, PressureLimits, schedule_hash
 from ..conftest import claim_until_empty
 
 SERVER_ENV = {"HANDFUL_LEASE_SECONDS": "60", "HANDFUL_MAX_ATTEMPTS": "2"}
-LIMITS = {"nominal_pa": 100_000.0, "max_step_pa": 30_000.0, "source_pa": 205_000.0}
-
-
-@pytest.fixture
-def op(module_server):
-    return module_server.client("operator")
-
-
-@pytest.fixture
-def worker(module_server):
-    return module_server.client("worker")
+HARDWARE_LIMITS = {"nominal_pa": 100_000.0, "max_step_pa": 30_000.0, "source_pa": 205_000.0}
 
 
 @pytest.fixture(autouse=True)
@@ -40,18 +30,10 @@ def _nothing_left_queued(module_server):
             op.patch_experiment(exp["id"], status="archived")
 
 
-def new_exp(op, **fields):
-    spec = {
-        "name": "w",
-        "task": "tip_speed",
-        "levels": 3,
-        "method": "random",
-        "sim_preset": "fast",
-        **fields,
-    }
-    if spec.get("target") == "hardware":
-        spec.setdefault("limits", LIMITS)
-    return op.create_experiment(**spec)
+NEW_EXP = {
+    "name": "w",
+    "sim_preset": "fast",
+}  # this module's experiments (see tests/conftest.py new_exp)
 
 
 def npz_bytes(**arrays) -> bytes:
@@ -66,7 +48,7 @@ def error_of(call, *args, **kwargs) -> HandfulAPIError:
     return info.value
 
 
-def test_sim_claim_heartbeat_result(op, worker):
+def test_sim_claim_heartbeat_result(op, worker, new_exp):
     exp = new_exp(op)
     [trial] = op.suggest(exp["id"])
     [c] = worker.claim("w-1", "sim", max_trials=4)
@@ -76,14 +58,13 @@ def test_sim_claim_heartbeat_result(op, worker):
     hb = worker.heartbeat(c["lease_id"])
     assert hb["status"] == "active" and hb["lease_expires_at"] >= c["lease_expires_at"]
     traj = npz_bytes(time_s=np.linspace(0, 5, 11), tip_speed_m_s=np.full(11, 2.5))
-    out = worker.report_result(
-        trial["id"],
-        c["lease_id"],
-        executed_pressure_schedule_pa=trial["pressure_schedule_pa"],
-        objective=2.5,
-        trajectory_npz=traj,
-        summary={"wall_s": 0.2},
-    )
+    report = {
+        "executed_pressure_schedule_pa": trial["pressure_schedule_pa"],
+        "objective": 2.5,
+        "trajectory_npz": traj,
+        "summary": {"wall_s": 0.2},
+    }
+    out = worker.report_result(trial["id"], c["lease_id"], **report)
     t = out["trial"]
     assert t["status"] == "completed" and t["objective"] == 2.5 and t["has_trajectory"]
     assert t["executed_theta"] == trial["theta"]  # it ran the plan: the planned θ
@@ -93,15 +74,7 @@ def test_sim_claim_heartbeat_result(op, worker):
     ]
     assert op.trajectory(trial["id"])["tip_speed_m_s"] == [2.5] * 11
     # idempotent per lease: the same report again gives the same reply and stores nothing
-    again = worker.report_result(
-        trial["id"],
-        c["lease_id"],
-        executed_pressure_schedule_pa=trial["pressure_schedule_pa"],
-        objective=2.5,
-        trajectory_npz=traj,
-        summary={"wall_s": 0.2},
-    )
-    assert again == out
+    assert worker.report_result(trial["id"], c["lease_id"], **report) == out
     assert op.get_trial(trial["id"])["n_measurements"] == 1
     err = error_of(worker.report_result, trial["id"], c["lease_id"], objective=3.0)
     assert err.status == 409 and "different result" in err.detail
@@ -109,7 +82,7 @@ def test_sim_claim_heartbeat_result(op, worker):
     assert err.status == 409 and err.code == "lease_lost"
 
 
-def test_bad_results_are_refused_and_store_nothing(op, worker, module_server):
+def test_bad_results_are_refused_and_store_nothing(op, worker, module_server, new_exp):
     exp = new_exp(op)
     a, b = op.suggest(exp["id"], n=2)
     claims = worker.claim("w-1", "sim", max_trials=2)
@@ -136,7 +109,7 @@ def test_bad_results_are_refused_and_store_nothing(op, worker, module_server):
         worker.report_result(tid, lease[tid], fault="test over")
 
 
-def test_executed_schedule_is_what_the_gp_sees(op, worker):
+def test_executed_schedule_is_what_the_gp_sees(op, worker, new_exp):
     exp = new_exp(op)
     [trial] = op.suggest(exp["id"])
     [c] = worker.claim("w-1", "sim")
@@ -156,7 +129,7 @@ def test_executed_schedule_is_what_the_gp_sees(op, worker):
     assert op.model(exp["id"])["incumbent_theta"] == t["executed_theta"]
 
 
-def test_sim_fault_fails_hardware_fault_needs_review(op, worker):
+def test_sim_fault_fails_hardware_fault_needs_review(op, worker, new_exp):
     sim = new_exp(op)
     [st] = op.suggest(sim["id"])
     [c] = worker.claim("w-1", "sim")
@@ -180,7 +153,7 @@ def test_sim_fault_fails_hardware_fault_needs_review(op, worker):
     assert op.get_trial(ht["id"])["status"] == "completed"
 
 
-def test_hardware_gate_confirmation_and_changed_schedule(op, worker, module_server):
+def test_hardware_gate_confirmation_and_changed_schedule(op, worker, module_server, new_exp):
     hw = new_exp(op, target="hardware")
     a, b, c3 = op.suggest(hw["id"], n=3)
     assert worker.claim("hw", "hardware", max_trials=3) == []  # none confirmed
@@ -213,7 +186,7 @@ def test_hardware_gate_confirmation_and_changed_schedule(op, worker, module_serv
     worker.report_result(a["id"], claims[0]["lease_id"], fault="stop")
 
 
-def test_executed_schedule_beyond_limits_needs_review(op, worker):
+def test_executed_schedule_beyond_limits_needs_review(op, worker, new_exp):
     hw = new_exp(op, target="hardware")
     [t] = op.suggest(hw["id"])
     op.confirm_trial(t["id"], t["schedule_hash"])
@@ -227,7 +200,7 @@ def test_executed_schedule_beyond_limits_needs_review(op, worker):
     assert out["executed_pressure_schedule_pa"][3][5] == 150_000.0
 
 
-def test_abort_revokes_the_lease_and_refuses_the_late_result(op, worker):
+def test_abort_revokes_the_lease_and_refuses_the_late_result(op, worker, new_exp):
     exp = new_exp(op)
     [t] = op.suggest(exp["id"])
     [c] = worker.claim("w", "sim")
@@ -239,14 +212,14 @@ def test_abort_revokes_the_lease_and_refuses_the_late_result(op, worker):
     assert "trial.abort" in actions and "lease.revoked" in actions
 
 
-def test_concurrent_claims_never_hand_out_a_trial_twice(op, module_server):
+def test_concurrent_claims_never_hand_out_a_trial_twice(op, module_server, new_exp):
     exp = new_exp(op)
     trials = op.suggest(exp["id"], n=8)
     got = claim_until_empty(module_server, n_workers=4)
     assert sorted(got) == sorted(t["id"] for t in trials)
 
 
-def test_base64_trajectory_roundtrip(op, worker):
+def test_base64_trajectory_roundtrip(op, worker, new_exp):
     exp = new_exp(op)
     [t] = op.suggest(exp["id"])
     [c] = worker.claim("w", "sim")
@@ -258,7 +231,7 @@ def test_base64_trajectory_roundtrip(op, worker):
     assert base64.b64encode(worker_npz)
 
 
-def test_resolve_complete_needs_a_measurement_and_fail_ends_it(op, worker):
+def test_resolve_complete_needs_a_measurement_and_fail_ends_it(op, worker, new_exp):
     hw = new_exp(op, target="hardware")
     a, b = op.suggest(hw["id"], n=2)
     for t in (a, b):
@@ -278,7 +251,7 @@ def test_resolve_complete_needs_a_measurement_and_fail_ends_it(op, worker):
     assert any(x["action"] == "trial.resolve" and x["actor"] == "operator" for x in audit)
 
 
-def test_hardware_throw_waits_for_the_operators_tape_measure(op, worker):
+def test_hardware_throw_waits_for_the_operators_tape_measure(op, worker, new_exp):
     hw = new_exp(op, target="hardware", task="throw", objective_unit="m")
     [t] = op.suggest(hw["id"])
     op.confirm_trial(t["id"], t["schedule_hash"])
@@ -297,7 +270,9 @@ def test_hardware_throw_waits_for_the_operators_tape_measure(op, worker):
     assert measured["objective"] == pytest.approx(2.5) and measured["n_measurements"] == 2
 
 
-def test_a_small_upload_of_a_huge_array_is_refused_before_the_lock(op, worker, module_server):
+def test_a_small_upload_of_a_huge_array_is_refused_before_the_lock(
+    op, worker, module_server, new_exp
+):
     exp = new_exp(op)
     [t] = op.suggest(exp["id"])
     [c] = worker.claim("w", "sim")
@@ -319,7 +294,7 @@ def test_a_small_upload_of_a_huge_array_is_refused_before_the_lock(op, worker, m
     worker.report_result(t["id"], c["lease_id"], objective=1.0)  # the lease still holds
 
 
-def test_a_ragged_executed_schedule_is_422_and_the_lease_holds(op, worker, module_server):
+def test_a_ragged_executed_schedule_is_422_and_the_lease_holds(op, worker, module_server, new_exp):
     import httpx
 
     exp = new_exp(op)

@@ -12,6 +12,7 @@ from app.db.base import Base
 from app.db.migrate import downgrade, upgrade
 from app.db.session import Database, make_engine
 from app.service import trials
+from app.service.auth import Actor
 
 
 def _tables(url: str) -> set[str]:
@@ -110,7 +111,6 @@ def test_executed_theta_rows_are_rewritten_to_the_one_rule_and_back(db, make_exp
     from app.db.migrate import alembic_config
     from app.db.models import Lease, Trial
     from app.policy import Policy
-    from tests.service.conftest import OPERATOR
 
     url = str(db.engine.url)
     exp_id = make_experiment(task="throw", levels=3)
@@ -123,7 +123,7 @@ def test_executed_theta_rows_are_rewritten_to_the_one_rule_and_back(db, make_exp
     ids = []
     with db.write() as s:
         for i, th in enumerate(planned):
-            t = trials.attach(s, exp_id, th.tolist(), note="", actor=OPERATOR)
+            t = trials.attach(s, exp_id, th.tolist(), note="", actor=Actor("olivia", "operator"))
             ids.append(t.id)
             if i < 2:
                 now = utcnow()
