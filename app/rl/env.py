@@ -7,10 +7,11 @@
     info["objective"]                                 # the simulator's objective of the episode
 
 **Action**: the 12 chamber pressure commands as fractions of the maximum, in [0, 1]; for
-``throw`` a 13th entry, the release: at or above 0.5 the gripper lets go at the end of this step
-(this step is t_R; the gripper command is open from the next step on, and stays open). Never
-released, t_R = H. Commands are held or ramped over the step as ``command_hold`` says
-(``app.sim.rollout``).
+``throw`` a 13th entry, the gripper command as a fraction of full scale, as in the published
+environment: below ``GRIP_CLOSED_FROM`` (about 0.001) it is open, else closed. Once open it
+stays open; step 1 always holds the cube (the policy's release step t_R ≥ 1), so t_R is the
+number of steps before the first open command (never opened: t_R = H). Commands are held or
+ramped over each step as ``command_hold`` says (``app.sim.rollout``).
 
 **Observation** (float32): the end effector's linear velocity (world frame, m/s), then the task
 object's position (cube or hammer-ball centre, world frame, m; none for ``tip_speed``; the
@@ -20,10 +21,11 @@ joint's (u, v) bend (rad) and their rates (rad/s): u0, v0, u1, v1, u2, v2, then 
 **Reward**: per step, so that an episode's return is the task objective under the chosen scoring
 rule (``objective_rule``; equal up to float rounding, the test checks it):
 
-* throw, ``paper``: ‖tip velocity‖ at the step's end while the cube is held (t ≤ t_R); plus,
-  at the last step, the cube centre's distance from the world origin.
-* throw, ``published``: the tip speed of step t when t < t_R, or t = t_R with 3 ≤ t_R ≤ H − 1,
-  never step H's; plus, at the last step, the cube body origin's distance from the origin.
+* throw, ``paper``: ‖tip velocity‖ at the step's end while the gripper command is closed
+  (t ≤ t_R); plus, at the last step, the cube centre's distance from the world origin.
+* throw, ``published``: step t's tip speed when t < t_R, or t = t_R with 3 ≤ t_R ≤ H − 1, never
+  step H's; it is paid at step t + 1, when the gripper command shows whether t was t_R; plus,
+  at the last step, the cube body origin's distance from the origin.
 * hammer: each step's term of the rule's sum (m·|ż| + F − [late]·d) / 1000.
 * tip_speed: the growth of the largest tip speed on the 100 Hz grid so far.
 
@@ -43,22 +45,10 @@ import numpy as np
 from app.bench.specs import HORIZON, PAPER_COMMAND_HOLD, PAPER_OBJECTIVE_RULE, PAPER_PRESET
 from app.policy import N_CHAMBERS
 from app.sim import Episode, SimulationDiverged
-from app.sim.model import check_task
+from app.sim.model import GRIP_CLOSED_FROM, check_task
 
-OBSERVATION_SETS: tuple[str, ...] = ("task", "joints")
-#: the release entry of a throw's action lets go at or above this
-RELEASE_THRESHOLD = 0.5
 _BEND_SENSORS = ("u0", "v0", "u1", "v1", "u2", "v2")
 _RATE_SENSORS = ("ud0", "vd0", "ud1", "vd1", "ud2", "vd2")
-
-
-def check_observations(observations: object) -> str:
-    """``observations`` if it names an observation set; ValueError naming the choices."""
-    if observations not in OBSERVATION_SETS:
-        raise ValueError(
-            f"unknown observation set {observations!r}; choose one of {', '.join(OBSERVATION_SETS)}"
-        )
-    return str(observations)
 
 
 class HandfulEnv(gym.Env[np.ndarray, np.ndarray]):
@@ -102,7 +92,7 @@ class HandfulEnv(gym.Env[np.ndarray, np.ndarray]):
         self._t = 0
         self._done = True
         self._rows: list[np.ndarray] = []
-        self._best_speed = 0.0
+        self._best_speed = self._prev_speed = 0.0
         self._obs = np.zeros(n_obs, dtype=np.float32)
 
     def _sensor_adr(self, name: str) -> int:
@@ -130,7 +120,7 @@ class HandfulEnv(gym.Env[np.ndarray, np.ndarray]):
         self._t = 0
         self._done = False
         self._rows = []
-        self._best_speed = 0.0
+        self._best_speed = self._prev_speed = 0.0
         self._obs = self._observe(self._ep.sensors[0])
         return self._obs.copy(), {}
 
@@ -143,13 +133,14 @@ class HandfulEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ValueError(f"action must have shape {self.action_space.shape}, got {a.shape}")
         ep = self._ep
         row = a[:N_CHAMBERS] * self.max_pressure_pa
-        released_before = ep.release is not None
-        release = self.task == "throw" and not released_before and a[-1] >= RELEASE_THRESHOLD
         self._t += 1
         t = self._t
+        released_before = ep.release is not None
+        open_cmd = self.task == "throw" and t >= 2 and a[-1] < GRIP_CLOSED_FROM
+        opens = released_before or open_cmd
         info: dict[str, Any] = {"step": t}
         try:
-            ep.step(row, release=release)
+            ep.step(row, open_gripper=opens)
             s = ep.sensors[ep._idx - 1]
             if not np.isfinite(s).all():
                 raise SimulationDiverged(
@@ -163,7 +154,7 @@ class HandfulEnv(gym.Env[np.ndarray, np.ndarray]):
             info.update(diverged=True, error=str(exc), objective=float("nan"))
             return self._obs.copy(), 0.0, True, False, info
         self._rows.append(row)
-        reward = self._reward(s, t, released_before, release)
+        reward = self._reward(s, t, released_before, opens)
         self._obs = self._observe(s)
         terminated = t >= self.horizon
         if terminated:
@@ -178,25 +169,24 @@ class HandfulEnv(gym.Env[np.ndarray, np.ndarray]):
             )
         return self._obs.copy(), float(reward), terminated, False, info
 
-    def _reward(self, s: np.ndarray, t: int, released_before: bool, release_now: bool) -> float:
+    def _reward(self, s: np.ndarray, t: int, released_before: bool, opens: bool) -> float:
         ep, lay, horizon, rule = self._ep, self._ep.layout, self.horizon, self.objective_rule
         last = t == horizon
         if self.task == "throw":
             speed = float(np.linalg.norm(s[lay.eef_linvel : lay.eef_linvel + 3]))
             if rule == "paper":
-                r = 0.0 if released_before else speed
+                r = 0.0 if opens else speed  # row t closed ⇔ t ≤ t_R
                 if last:
                     r += float(np.linalg.norm(s[lay.object_pos : lay.object_pos + 3]))
-            else:
-                if released_before:
-                    counted = False
-                elif release_now:
-                    counted = 3 <= t <= horizon - 1
-                else:
-                    counted = t < horizon
-                r = speed if counted else 0.0
-                if last:
-                    r += float(np.linalg.norm(s[lay.cube_origin : lay.cube_origin + 3]))
+                return r
+            # published: step t − 1's speed, now that row t tells whether t − 1 was t_R
+            prev, self._prev_speed = self._prev_speed, speed
+            r = 0.0
+            if t >= 2 and not released_before:
+                counted = 3 <= t - 1 <= horizon - 1 if opens else True  # t − 1 = t_R, or < t_R
+                r = prev if counted else 0.0
+            if last:
+                r += float(np.linalg.norm(s[lay.cube_origin : lay.cube_origin + 3]))
             return r
         if self.task == "hammer":
             force = float(s[lay.plate])

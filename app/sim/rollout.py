@@ -413,7 +413,7 @@ def rollout(
         objective_rule=rule,
     )
     for row in schedule:
-        ep._advance(row, ep.steps_done + 1 == release)
+        ep._advance(row, release is not None and ep.steps_done >= release)
     out = ep.result()
     out.wall_s = time.perf_counter() - t0
     return out
@@ -446,12 +446,13 @@ class Episode:
 
         ep = Episode("throw", horizon=10, preset="fast", command_hold="linear")
         for t in range(1, 11):
-            ep.step(row_pa, release=(t == t_r))  # row_pa: (12,) Pa, commanded during step t
+            ep.step(row_pa, open_gripper=t > t_r)  # row_pa: (12,) Pa, commanded in step t
             ep.reading(EEF_LINVEL_SENSOR)        # a sensor at the end of step t
         res = ep.result()                        # what ``rollout`` gives for the same rows
 
-    ``release=True`` (throw only) makes this step t_R: the gripper command is closed for steps
-    1..t_R and open after (never released: t_R = H). Holds, grasp and scoring are ``rollout``'s
+    ``open_gripper`` (throw only) is the gripper command of this step: once open it stays open,
+    and t_R is the number of steps before it opened (never opened: t_R = H); it must stay closed
+    in step 1, as t_R ≥ 1. Holds, grasp and scoring are ``rollout``'s
     (module docstring); ``rollout`` is this class driven row by row, so both give bit-identical
     results. The arm starts at rest at construction; sensors then read the state at t = 0.
 
@@ -506,7 +507,7 @@ class Episode:
         self.act = np.empty((n_pts, model.na))
         self.sensors = np.empty((n_pts, model.nsensordata))
         self.steps_done = 0
-        self.release: int | None = None  # t_R once the policy released
+        self.release: int | None = None  # t_R once the gripper command opened
         self._prev_row = np.zeros(self.nu)  # the "linear" ramp starts from all zeros
         self._tau = np.arange(n_ctrl) / max(n_ctrl - 1, 1) if n_ctrl > 1 else np.ones(1)
         # mj_step1 computes position/velocity quantities and sensors of the current state; the
@@ -538,7 +539,7 @@ class Episode:
         pts = np.asarray(self.points[: self._idx])
         return np.flatnonzero((pts > lo) & (pts <= hi))
 
-    def step(self, pressures_pa: np.ndarray, *, release: bool = False) -> None:
+    def step(self, pressures_pa: np.ndarray, *, open_gripper: bool = False) -> None:
         """Run the next control step with chamber commands ``pressures_pa`` (12,), Pa."""
         if self.steps_done >= self.horizon:
             raise ValueError(f"the episode has {self.horizon} control steps; all are done")
@@ -551,19 +552,23 @@ class Episode:
             )[0]
         except PolicyError as exc:
             raise ValueError(f"control step {t}: {exc}") from exc
-        if release and self.task != "throw":
-            raise ValueError(f"release only applies to throw, not {self.task}")
-        self._advance(row, bool(release))
+        if open_gripper and self.task != "throw":
+            raise ValueError(f"the gripper only exists in throw, not {self.task}")
+        if open_gripper and t == 1:
+            raise ValueError("the gripper holds the cube in step 1 (release step t_R ≥ 1)")
+        self._advance(row, bool(open_gripper))
 
-    def _advance(self, row: np.ndarray, release: bool) -> None:
+    def _advance(self, row: np.ndarray, open_gripper: bool) -> None:
         c = self.steps_done  # 0-based control step
         model, data, lay, n_ctrl = self.model, self.data, self.layout, self.n_ctrl
+        first_open = open_gripper and self.release is None
+        if first_open:
+            self.release = c  # steps 1..c held the cube
         if self.has_grip:
             # the gripper is closed for steps 1..t_R, open after
             row = np.append(row, 1.0 if self.release is None else 0.0)
         # The weld (if any) lets go when the gripper command opens: at the end of step t_R when
         # held; in the last physics step of step t_R + 1 when ramped (never for t_R = H).
-        first_open = self.release is not None and self.release == c
         weld_off = first_open and lay.weld >= 0
         step, step1, step2 = mujoco.mj_step, mujoco.mj_step1, mujoco.mj_step2
         ctrl = data.ctrl
@@ -604,8 +609,6 @@ class Episode:
         self._idx = idx
         self._prev_row = row
         self.steps_done = c + 1
-        if release and self.release is None:
-            self.release = c + 1
         # MuJoCo counts unstable states (and resets them) rather than stopping: check the
         # counters once per control step, so a blow-up is caught within 5 s / H.
         _check_warnings(data.warning, self.task, self.preset.name, end * self.dt)

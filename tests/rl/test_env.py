@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-from app.rl import HandfulEnv
+from app.rl.env import HandfulEnv
 from app.sim import rollout
 
 
@@ -42,9 +42,11 @@ def test_return_equals_the_rollout_objective(
     rng = np.random.default_rng(11)
     actions = rng.uniform(size=(10, *env.action_space.shape)).astype(np.float32)
     if task == "throw":
-        actions[:, -1] = 0.0
+        actions[:, -1] = np.maximum(actions[:, -1], 0.01)  # closed (≥ 0.001 of full scale)
+        actions[0, -1] = 0.0  # step 1 always holds the cube: an open command there is ignored
         if release is not None:
-            actions[release - 1 :, -1] = 1.0  # later "release" entries change nothing
+            actions[release, -1] = 0.0  # t_R = release: open from step t_R + 1
+            actions[release + 1 :: 2, -1] = 0.5  # once open, the gripper stays open
     total, info = run_episode(env, actions)
     schedule = actions[:, :12].astype(np.float64) * env.max_pressure_pa
     np.testing.assert_array_equal(info["schedule_pa"], schedule)

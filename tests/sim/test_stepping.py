@@ -33,7 +33,7 @@ def test_stepping_row_by_row_is_bit_identical_to_rollout(task: str, hold: str, r
     )
     tip_vel = []
     for t, row in enumerate(schedule, start=1):
-        ep.step(row, release=(t == release))
+        ep.step(row, open_gripper=release is not None and t > release)
         tip_vel.append(ep.reading(EEF_LINVEL_SENSOR))
     stepped = ep.result()
     assert_same_result(stepped, whole)
@@ -49,8 +49,10 @@ def test_episode_refuses_misuse() -> None:
     ep = Episode("hammer", horizon=2, preset="fast")
     with pytest.raises(ValueError, match="0 are done"):
         ep.result()
-    with pytest.raises(ValueError, match="release only applies to throw"):
-        ep.step(np.zeros(12), release=True)
+    with pytest.raises(ValueError, match="gripper only exists in throw"):
+        ep.step(np.zeros(12), open_gripper=True)
+    with pytest.raises(ValueError, match="holds the cube in step 1"):
+        Episode("throw", preset="fast").step(np.zeros(12), open_gripper=True)
     with pytest.raises(ValueError, match=r"control step 1: .*outside"):
         ep.step(np.full(12, 1e6))
     ep.step(np.zeros(12))
