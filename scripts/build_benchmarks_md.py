@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
-PAGES = ("sim", "optim", "service", "workers", "dashboard")
+PAGES = ("sim", "optim", "redq", "service", "workers", "dashboard")
 
 
 def demote(text: str) -> str:

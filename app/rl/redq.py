@@ -15,9 +15,9 @@ Why Tianshou (measured, docs/bench/redq.md): with the paper's sizes it costs 0.3
 REDQLoss per update, within 10 % of a bare PyTorch critic update, and its REDQ is the whole
 algorithm (policy delay, ensemble subset, auto-α) rather than a loss to assemble.
 
-Randomness: the run's seed sets torch's and NumPy's global generators (Tianshou samples batches
-and ensemble subsets from NumPy's global one) and this agent's own generator; a checkpoint holds
-all three, so a resumed run continues exactly where it stopped.
+Randomness: the run's seed sets torch's and NumPy's global generators (Tianshou draws ensemble
+subsets from NumPy's global one), the replay buffer's batch sampler and this agent's own
+generator; a checkpoint holds all four, so a resumed run continues exactly where it stopped.
 """
 
 from __future__ import annotations
@@ -108,7 +108,7 @@ class REDQAgent:
             alpha=AutoAlpha(-float(act_dim), 0.0, AdamOptimizerFactory(lr=s.lr)),
             actor_delay=s.utd,
         )
-        self.buffer = ReplayBuffer(BUFFER_SIZE)
+        self.buffer = ReplayBuffer(BUFFER_SIZE, random_seed=self.seed)  # samples its batches
         self.episodes = 0
         self.act_dim = act_dim
 
@@ -178,7 +178,7 @@ class REDQAgent:
             "episodes": self.episodes,
             "algorithm": self.algorithm.state_dict(),
             "optims": [o.state_dict() for o in self._optims()],
-            "buffer": self.buffer,
+            "buffer": self._compact_buffer(),
             "rng": self.rng.bit_generator.state,
             "np_global": np.random.get_state(),
             "torch": torch.get_rng_state(),
@@ -191,11 +191,20 @@ class REDQAgent:
         self.algorithm.load_state_dict(state["algorithm"])
         for o, sd in zip(self._optims(), state["optims"], strict=True):
             o.load_state_dict(sd)
-        self.buffer = state["buffer"]
+        self.buffer = ReplayBuffer(BUFFER_SIZE)
+        self.buffer.update(state["buffer"])  # same slots as before: never wrapped below 200K
+        self.buffer._random_state = state["buffer"]._random_state  # where its sampling was
         self.rng.bit_generator.state = state["rng"]
         np.random.set_state(state["np_global"])
         torch.set_rng_state(state["torch"])
         self.algorithm.critic_gradient_step = int(state["critic_steps"])
+
+    def _compact_buffer(self) -> ReplayBuffer:
+        """The stored transitions in a buffer just their size (the live one is preallocated)."""
+        small = ReplayBuffer(max(1, len(self.buffer)))
+        small.update(self.buffer)
+        small._random_state = self.buffer._random_state  # the batch sampler's generator
+        return small
 
     def _optims(self) -> list[torch.optim.Optimizer]:
         """Optimisers outside the algorithm's state_dict (which holds the policy's and critics'):
