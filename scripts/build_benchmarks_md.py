@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
-PAGES = ("sim", "paper", "optim", "service", "load", "workers", "dashboard")
+PAGES = ("sim", "paper", "optim", "redq", "service", "load", "workers", "dashboard")
 
 
 def demote(text: str) -> str:

@@ -36,13 +36,16 @@ from app.bench.report import (
     write_outputs,
     write_results_csv,
 )
-from app.bench.runner import objective_fn, run_one
+from app.bench.runner import objective_fn, run_one, run_rl
 from app.bench.specs import (
     COMMAND_HOLDS,
     OBJECTIVE_RULES,
     PAPER_COMMAND_HOLD,
     PAPER_OBJECTIVE_RULE,
     PAPER_PRESET,
+    RL_LEVELS,
+    SWEEP_METHODS,
+    TASKS,
     RunSpec,
     make_specs,
     task_dim,
@@ -57,7 +60,10 @@ __all__ = [
     "PAPER_OBJECTIVE_RULE",
     "PAPER_PRESET",
     "RESULT_COLUMNS",
+    "RL_LEVELS",
     "RUN_COLUMNS",
+    "SWEEP_METHODS",
+    "TASKS",
     "RunSpec",
     "best_at",
     "cached_rows",
@@ -71,6 +77,7 @@ __all__ = [
     "result_rows",
     "run_dir",
     "run_one",
+    "run_rl",
     "run_sweep",
     "stored_rows",
     "summary_markdown",

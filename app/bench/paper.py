@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from app.bench.specs import RunSpec
+from app.bench.specs import SWEEP_METHODS, RunSpec
 from app.bench.stats import best_at
-from app.optim import DEFAULT_METHOD, METHODS, SettingsError
+from app.optim import DEFAULT_METHOD, SettingsError
 
 PAPER_LEVELS = (2, 5, 7, 10)
 PAPER_TRIALS = (100, 500, 10_000)
@@ -94,7 +94,7 @@ class Cell:
     trials: int
 
 
-def grid(available: Sequence[str] = METHODS) -> list[Cell]:
+def grid(available: Sequence[str] = SWEEP_METHODS) -> list[Cell]:
     """Every cell of the paper's two tables, handful's default method at 100 and 500 trials, and
     REDQ's table when ``available`` has REDQ."""
     cells = [
@@ -261,7 +261,7 @@ def paper_markdown(
     chosen: Sequence[Cell],
     *,
     header: Sequence[str],
-    available: Sequence[str] = METHODS,
+    available: Sequence[str] = SWEEP_METHODS,
 ) -> str:
     """``paper.md``: the paper's two tables (and REDQ's) with handful's number beside each of
     the paper's: mean ± std (ddof 0) over the seeds run, the seed count, and ⚠ where the two

@@ -23,7 +23,7 @@ from app.bench.cache import (
     write_part,
     write_run,
 )
-from app.bench.specs import RunSpec
+from app.bench.specs import HORIZON, RunSpec
 from app.optim import Observation, build_optimizer
 
 
@@ -65,6 +65,7 @@ def run_one(
     objective: Callable[[np.ndarray], float] | None = None,
 ) -> list[dict[str, Any]]:
     """Run (or resume) one optimisation; return its rows (trial, objective, wall_s, theta).
+    An RL method's run goes to ``run_rl``.
 
     A diverged simulation counts as the worst value seen so far (0 before any), so the
     optimiser still learns that the point is bad; the row keeps that value. Sets torch's
@@ -78,6 +79,8 @@ def run_one(
         done = cached_rows(spec, out)
         if done is not None:
             return done
+    if spec.is_rl:
+        return run_rl(spec, out)
     f = objective or objective_fn(
         spec.task, spec.levels, spec.preset, spec.command_hold, spec.objective_rule
     )
@@ -120,6 +123,79 @@ def run_one(
             if fh is not None:
                 writer.writerow(run_line(row))
                 fh.flush()
+    finally:
+        if fh is not None:
+            fh.close()
+    if out is not None:
+        write_run(spec, out, rows)
+    return rows
+
+
+def run_rl(spec: RunSpec, out: Path | None = None) -> list[dict[str, Any]]:
+    """Run (or resume) one RL run (REDQ, ``app.rl``): one episode = one trial = one row, whose
+    θ is the episode's commands (H rows of 12 pressures as fractions of the maximum, plus the
+    gripper command when throwing; rounded to 1e-4) and objective the simulator's.
+
+    Resuming: the agent is checkpointed to ``runs/<key>.agent.pt`` every ``checkpoint_every``
+    episodes and at the end (weights, optimisers, replay buffer, random generators). A run
+    resumes from the checkpoint, keeping the cached rows up to it (later ones are dropped and
+    rerun, exactly as they would have run); without a checkpoint it reruns from episode 1,
+    never mixing rows of two agents. A longer budget continues a finished run the same way.
+    A diverged episode scores the worst objective so far (0 before any), as in ``run_one``.
+    """
+    from app.bench.specs import check_rl_settings
+    from app.rl.env import HandfulEnv
+    from app.rl.redq import REDQAgent
+
+    settings = check_rl_settings(spec.method, spec.settings)
+    env = HandfulEnv(
+        spec.task,
+        joint_states=settings.observations == "joints",
+        preset=spec.preset,
+        command_hold=spec.command_hold,
+        objective_rule=spec.objective_rule,
+        horizon=HORIZON,
+    )
+    agent = REDQAgent(env, settings, seed=spec.seed)
+    rows: list[dict[str, Any]] = []
+    part = ckpt = None
+    if out is not None:
+        run_dir(out).mkdir(parents=True, exist_ok=True)
+        part = run_dir(out) / f"{spec.key}.part.csv"
+        ckpt = run_dir(out) / f"{spec.key}.agent.pt"
+        shorter = run_dir(out) / f"{spec.key}.csv"
+        start = part if part.exists() else shorter if shorter.exists() else None
+        if start is not None and ckpt.exists():
+            cached = read_run(start)
+            agent.restore(ckpt)
+            if len(cached) >= agent.episodes:
+                rows = cached[: agent.episodes]
+            else:  # a checkpoint ahead of its rows: not ours to trust
+                agent = REDQAgent(env, settings, seed=spec.seed)
+        write_part(part, rows)
+    fh = open(part, "a", newline="") if part is not None else None  # noqa: SIM115
+    try:
+        writer = csv.writer(fh) if fh is not None else None
+        while len(rows) < spec.budget:
+            t0 = time.perf_counter()
+            ep = agent.run_episode()
+            value = ep.objective
+            if not math.isfinite(value):
+                value = min((r["objective"] for r in rows), default=0.0)
+            row = {
+                "trial": len(rows) + 1,
+                "objective": value,
+                "wall_s": time.perf_counter() - t0,
+                "theta": [round(float(v), 4) for v in ep.actions.reshape(-1)],
+            }
+            rows.append(row)
+            if writer is not None and fh is not None:
+                writer.writerow(run_line(row))
+                fh.flush()
+                if ckpt is not None and (
+                    len(rows) % settings.checkpoint_every == 0 or len(rows) == spec.budget
+                ):
+                    agent.save(ckpt)
     finally:
         if fh is not None:
             fh.close()

@@ -11,6 +11,7 @@ from typing import Any
 
 from app.optim import METHODS, OptimizerSpec, SettingsError
 from app.policy import HORIZON, RELEASE_TASKS, TASKS, policy_dim
+from app.rl.settings import RL_METHODS, REDQSettings
 
 # app.sim's COMMAND_HOLDS and OBJECTIVE_RULES (not imported: the specs stay free of MuJoCo)
 COMMAND_HOLDS = ("zero", "linear")
@@ -28,7 +29,13 @@ PAPER_OBJECTIVE_RULE = "published"
 COST_RANK = {
     "random": 0, "cem": 0, "cmaes": 0, "optuna-tpe": 1, "bo-lei": 2, "bo-levels": 3,
     "optuna-gp": 4, "bo-ucb": 5, "bo-lei-default": 6, "bo-turbo": 6, "bo-lei-distinct": 6,
+    "redq": 7, "redq-joints": 7,
 }  # fmt: skip
+#: what a sweep runs: the optimisers the trial service offers (``app.optim.METHODS``), then the
+#: benchmark-only RL methods (REDQ, ``app.rl``; the service does not offer them)
+SWEEP_METHODS: tuple[str, ...] = (*METHODS, *RL_METHODS)
+#: P of an RL method's runs: it commands continuous pressures, no discretisation
+RL_LEVELS = 0
 
 
 @dataclass(frozen=True)
@@ -63,6 +70,11 @@ class RunSpec:
             blob = json.dumps(self.settings, sort_keys=True, default=str)
             key += "_" + hashlib.sha1(blob.encode()).hexdigest()[:8]
         return key
+
+    @property
+    def is_rl(self) -> bool:
+        """An RL method (REDQ): an agent acting per control step instead of an optimiser."""
+        return self.method in RL_METHODS
 
     @property
     def with_release(self) -> bool:
@@ -105,8 +117,8 @@ def validate(
             f"unknown objective rule {objective_rule!r}; choose from {', '.join(OBJECTIVE_RULES)}"
         )
     for m in methods:
-        if m not in METHODS:
-            raise SettingsError(f"unknown method {m!r}; choose from {', '.join(METHODS)}")
+        if m not in SWEEP_METHODS:
+            raise SettingsError(f"unknown method {m!r}; choose from {', '.join(SWEEP_METHODS)}")
     for t in tasks:
         if t not in TASKS:
             raise SettingsError(f"unknown task {t!r}; choose from {', '.join(TASKS)}")
@@ -132,8 +144,11 @@ def make_specs(
     preset: str,
     command_hold: str = "zero",
     objective_rule: str = "paper",
+    rl_settings: dict[str, Any] | None = None,
 ) -> list[RunSpec]:
-    """All runs of a sweep, each as long as the largest budget."""
+    """All runs of a sweep, each as long as the largest budget. An RL method runs once per
+    (task, seed), with P = ``RL_LEVELS`` (it needs no P), and ``rl_settings`` (REDQSettings
+    fields; checked here)."""
     validate(
         methods=methods,
         tasks=tasks,
@@ -143,14 +158,34 @@ def make_specs(
         command_hold=command_hold,
         objective_rule=objective_rule,
     )
+    rl = dict(rl_settings or {})
+    for m in methods:
+        if m in RL_METHODS:
+            check_rl_settings(m, rl)
     n = max(budgets)
-    return [
-        RunSpec(m, t, p, s, n, preset, command_hold=command_hold, objective_rule=objective_rule)
+    specs = {
+        RunSpec(
+            m,
+            t,
+            RL_LEVELS if m in RL_METHODS else p,
+            s,
+            n,
+            preset,
+            settings=rl if m in RL_METHODS else {},
+            command_hold=command_hold,
+            objective_rule=objective_rule,
+        ): None
         for t in tasks
         for p in levels
         for m in methods
         for s in range(seeds)
-    ]
+    }
+    return list(specs)
+
+
+def check_rl_settings(method: str, settings: dict[str, Any]) -> REDQSettings:
+    """The REDQ settings of an RL run; SettingsError (one line) for a bad one."""
+    return REDQSettings.for_method(method, settings)
 
 
 def task_dim(task: str) -> int:

@@ -22,6 +22,22 @@ def _ints(name: str, values: list[str]) -> list[int]:
         raise  # unreachable
 
 
+def _key_values(name: str, items: list[str]) -> dict[str, object]:
+    """``KEY=VALUE`` options as a dict; a VALUE is read as JSON when it parses, else text."""
+    import json
+
+    out: dict[str, object] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            _fail(f"--{name} takes KEY=VALUE, got {item!r}")
+        try:
+            out[key.strip()] = json.loads(value)
+        except ValueError:
+            out[key.strip()] = value.strip()
+    return out
+
+
 def _fail(message: str) -> None:
     typer.echo(f"error: {message}", err=True)
     raise typer.Exit(2)
@@ -72,6 +88,12 @@ def optim(
     address: str = typer.Option(None, "--address", help="Ray cluster address (with --backend ray)"),
     workers: int = typer.Option(0, "--workers", help="parallel runs (default: all cores)"),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="show progress bars"),
+    redq: list[str] = typer.Option(
+        None,
+        "--redq",
+        help="a REDQ setting KEY=VALUE for the redq / redq-joints runs (repeatable), e.g. "
+        "utd=16, pretrain_episodes=250, batch_size=256, hidden_sizes=[256,256]",
+    ),
     cached_only: bool = typer.Option(
         False,
         "--cached-only",
@@ -79,7 +101,8 @@ def optim(
         "up to the trials they reached)",
     ),
 ) -> None:
-    """Run BO, CEM, random search, Optuna and CMA-ES on the simulated tasks; write
+    """Run BO, CEM, random search, Optuna and CMA-ES (and, asked for, the RL baseline REDQ:
+    ``--methods redq,redq-joints``) on the simulated tasks; write
     DIR/results.csv, DIR/summary.md and DIR/curves.png. Finished runs are cached and skipped.
 
     By default the simulator reproduces the paper's tables: preset, command hold and scoring
@@ -115,6 +138,7 @@ def optim(
             preset=preset,
             command_hold=command_hold,
             objective_rule=objective,
+            rl_settings=_key_values("redq", redq or []),
         )
     except SettingsError as exc:
         _fail(str(exc))

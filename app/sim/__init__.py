@@ -21,6 +21,7 @@ from app.sim.presets import PRESETS, Preset
 from app.sim.rollout import (
     COMMAND_HOLDS,
     OBJECTIVE_RULES,
+    Episode,
     RolloutResult,
     SimulationDiverged,
     Trajectory,
@@ -38,6 +39,7 @@ __all__ = [
     "ArmParams",
     "ContinuumJointParams",
     "CubeParams",
+    "Episode",
     "ForcePlateParams",
     "GripperParams",
     "HammerParams",

@@ -56,7 +56,14 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from app.policy import EPISODE_S, RELEASE_TASKS, PolicyError, check_release_step, check_schedule
+from app.policy import (
+    EPISODE_S,
+    N_CHAMBERS,
+    RELEASE_TASKS,
+    PolicyError,
+    check_release_step,
+    check_schedule,
+)
 from app.sim.model import (
     CUBE_BODY,
     CUBE_ORIGIN_SENSOR,
@@ -418,11 +425,20 @@ def rollout(
     schedule, release = _check_inputs(task, pressure_schedule_pa, release_step, params)
     if not (isinstance(record_hz, int | float) and math.isfinite(record_hz) and record_hz > 0):
         raise ValueError(f"record_hz must be a positive number, got {record_hz!r}")
-    model = compiled_model(task, p, params)
     t0 = time.perf_counter()
-    out = _simulate(
-        model, task, p, params, schedule, release, float(record_hz), record_qpos, hold, rule
+    ep = Episode(
+        task,
+        horizon=schedule.shape[0],
+        preset=p,
+        record_hz=float(record_hz),
+        params=params,
+        record_qpos=record_qpos,
+        command_hold=hold,
+        objective_rule=rule,
     )
+    for row in schedule:
+        ep._advance(row, release is not None and ep.steps_done >= release)
+    out = ep.result()
     out.wall_s = time.perf_counter() - t0
     return out
 
@@ -449,94 +465,198 @@ def linear_commands(rows: np.ndarray, n_ctrl: int) -> np.ndarray:
     return out.reshape(horizon * n_ctrl, nu)
 
 
-def _simulate(
-    model: mujoco.MjModel,
-    task: str,
-    p: Preset,
-    params: ArmParams,
-    schedule: np.ndarray,
-    release: int | None,
-    record_hz: float,
-    record_qpos: bool,
-    hold: str,
-    rule: str,
-) -> RolloutResult:
-    dt = float(model.opt.timestep)
-    horizon = schedule.shape[0]
-    n_ctrl = _steps_for(EPISODE_S / horizon, dt, "a control step")
-    n_obj = _steps_for(1.0 / OBJECTIVE_HZ, dt, "the 100 Hz objective grid")
-    n_rec = max(1, round(1.0 / (record_hz * dt)))
-    n_total = n_ctrl * horizon
-    points = sorted(
-        set(range(0, n_total + 1, n_rec))
-        | set(range(0, n_total + 1, n_obj))
-        | set(range(0, n_total + 1, n_ctrl))
-    )
-    n_pts = len(points)
-    lay = _layout(model, task, params)
-    has_grip = lay.grip_actuator >= 0
-    rows = command_rows(schedule, release, has_grip)
-    per_step = linear_commands(rows, n_ctrl) if hold == "linear" else None
-    # The weld (if any) lets go when the gripper command opens: at the end of step t_R when
-    # held; in the last physics step of step t_R + 1 when ramped (never for t_R = H).
-    weld_off = -1
-    if lay.weld >= 0 and release is not None:
-        if hold == "zero":
-            weld_off = release * n_ctrl if release < horizon else -1
-        elif release < horizon:
-            weld_off = (release + 1) * n_ctrl - 1
+class Episode:
+    """One episode, one control step at a time: the loop ``rollout`` itself runs.
 
-    data = mujoco.MjData(model)
-    qpos = np.empty((n_pts, model.nq))
-    act = np.empty((n_pts, model.na))
-    sensors = np.empty((n_pts, model.nsensordata))
-    step, step1, step2 = mujoco.mj_step, mujoco.mj_step1, mujoco.mj_step2
-    warn = data.warning
-    name = p.name
-    ctrl = data.ctrl
+        ep = Episode("throw", horizon=10, preset="fast", command_hold="linear")
+        for t in range(1, 11):
+            ep.step(row_pa, open_gripper=t > t_r)  # row_pa: (12,) Pa, commanded in step t
+            ep.reading(EEF_LINVEL_SENSOR)        # a sensor at the end of step t
+        res = ep.result()                        # what ``rollout`` gives for the same rows
 
-    # mj_step1 computes position/velocity quantities and sensors of the current state; the
-    # following mj_step2 finishes that physics step. So every sample reads the state exactly
-    # at its time at no extra cost (acceleration-stage sensors, the plate's touch reading,
-    # come from the last completed step).
-    ctrl_points = {c * n_ctrl: c for c in range(horizon)}  # step k → control steps done
-    gaps = np.diff(points, prepend=0).tolist()
-    if per_step is None:
-        ctrl[:] = rows[0]
-    step1(model, data)
-    for idx, (k, gap) in enumerate(zip(points, gaps, strict=True)):
-        if gap and per_step is None:
-            step2(model, data)
-            if gap > 1:
-                step(model, data, gap - 1)
-            step1(model, data)
-        elif gap:
-            first = k - gap
-            for kk in range(first, k):
-                ctrl[:] = per_step[kk]
-                if kk == weld_off:
-                    data.eq_active[lay.weld] = 0
-                    if kk == first:
-                        step1(model, data)  # rebuild the constraints without the weld
-                if kk == first:
-                    step2(model, data)
-                else:
-                    step(model, data)
-            step1(model, data)
-        qpos[idx] = data.qpos
-        act[idx] = data.act
-        sensors[idx] = data.sensordata
-        done = ctrl_points.get(k)
-        if done is not None:
-            # MuJoCo counts unstable states (and resets them) rather than stopping: check
-            # the counters once per control step, so a blow-up is caught within 5 s / H.
-            _check_warnings(warn, task, name, k * dt)
+    ``open_gripper`` (throw only) is the gripper command of this step: once open it stays open,
+    and t_R is the number of steps before it opened (never opened: t_R = H); it must stay closed
+    in step 1, as t_R ≥ 1. Holds, grasp and scoring are ``rollout``'s
+    (module docstring); ``rollout`` is this class driven row by row, so both give bit-identical
+    results. The arm starts at rest at construction; sensors then read the state at t = 0.
+
+    Raises (``step``): ValueError for a bad row or a step past the horizon; SimulationDiverged
+    as ``rollout`` does.
+    """
+
+    def __init__(
+        self,
+        task: str,
+        *,
+        horizon: int = 10,
+        preset: str | Preset = "reference",
+        record_hz: float = 100.0,
+        params: ArmParams | None = None,
+        record_qpos: bool = False,
+        command_hold: str = "zero",
+        objective_rule: str = "paper",
+    ) -> None:
+        check_task(task)
+        p = get_preset(preset)
+        params = effective_params(p, params)
+        self.command_hold = check_command_hold(command_hold)
+        self.objective_rule = check_objective_rule(objective_rule)
+        if isinstance(horizon, bool) or not isinstance(horizon, int | np.integer) or horizon < 1:
+            raise ValueError(
+                f"horizon must be a whole number of control steps ≥ 1, got {horizon!r}"
+            )
+        if not (isinstance(record_hz, int | float) and math.isfinite(record_hz) and record_hz > 0):
+            raise ValueError(f"record_hz must be a positive number, got {record_hz!r}")
+        self.task, self.preset, self.params = task, p, params
+        self.horizon = horizon = int(horizon)
+        self.record_qpos = record_qpos
+        self.model = model = compiled_model(task, p, params)
+        self.dt = dt = float(model.opt.timestep)
+        self.n_ctrl = n_ctrl = _steps_for(EPISODE_S / horizon, dt, "a control step")
+        self.n_obj = n_obj = _steps_for(1.0 / OBJECTIVE_HZ, dt, "the 100 Hz objective grid")
+        self.n_rec = n_rec = max(1, round(1.0 / (float(record_hz) * dt)))
+        n_total = n_ctrl * horizon
+        self.points = points = sorted(
+            set(range(0, n_total + 1, n_rec))
+            | set(range(0, n_total + 1, n_obj))
+            | set(range(0, n_total + 1, n_ctrl))
+        )
+        self._gaps = np.diff(points, prepend=0).tolist()
+        n_pts = len(points)
+        self.layout = lay = _layout(model, task, params)
+        self.has_grip = lay.grip_actuator >= 0
+        self.nu = N_CHAMBERS + int(self.has_grip)
+        self.data = data = mujoco.MjData(model)
+        self.qpos = np.empty((n_pts, model.nq))
+        self.act = np.empty((n_pts, model.na))
+        self.sensors = np.empty((n_pts, model.nsensordata))
+        self.steps_done = 0
+        self.release: int | None = None  # t_R once the gripper command opened
+        self._prev_row = np.zeros(self.nu)  # the "linear" ramp starts from all zeros
+        self._tau = np.arange(n_ctrl) / max(n_ctrl - 1, 1) if n_ctrl > 1 else np.ones(1)
+        # mj_step1 computes position/velocity quantities and sensors of the current state; the
+        # following mj_step2 finishes that physics step. So every sample reads the state
+        # exactly at its time at no extra cost (acceleration-stage sensors, the plate's touch
+        # reading, come from the last completed step).
+        mujoco.mj_step1(model, data)
+        self._record(0)
+        self._idx = 1
+
+    def _record(self, idx: int) -> None:
+        self.qpos[idx] = self.data.qpos
+        self.act[idx] = self.data.act
+        self.sensors[idx] = self.data.sensordata
+
+    def reading(self, sensor: str) -> np.ndarray:
+        """Sensor ``sensor``'s latest reading (a copy): at the end of the last step done."""
+        sid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SENSOR, sensor)
+        if sid < 0:
+            raise ValueError(f"no sensor {sensor!r} in the {self.task} model")
+        adr, dim = int(self.model.sensor_adr[sid]), int(self.model.sensor_dim[sid])
+        return self.sensors[self._idx - 1 if self._idx else 0, adr : adr + dim].copy()
+
+    def step_samples(self) -> np.ndarray:
+        """Indices into the recorded arrays (``sensors``, ``qpos``, ``act``) of the last step
+        done's samples after its start, its end included."""
+        c = self.steps_done
+        lo, hi = (c - 1) * self.n_ctrl, c * self.n_ctrl
+        pts = np.asarray(self.points[: self._idx])
+        return np.flatnonzero((pts > lo) & (pts <= hi))
+
+    def step(self, pressures_pa: np.ndarray, *, open_gripper: bool = False) -> None:
+        """Run the next control step with chamber commands ``pressures_pa`` (12,), Pa."""
+        if self.steps_done >= self.horizon:
+            raise ValueError(f"the episode has {self.horizon} control steps; all are done")
+        t = self.steps_done + 1
+        try:
+            row = check_schedule(
+                np.asarray(pressures_pa, dtype=np.float64).reshape(1, -1),
+                lower_pa=0.0,
+                upper_pa=self.params.max_pressure_pa,
+            )[0]
+        except PolicyError as exc:
+            raise ValueError(f"control step {t}: {exc}") from exc
+        if open_gripper and self.task != "throw":
+            raise ValueError(f"the gripper only exists in throw, not {self.task}")
+        if open_gripper and t == 1:
+            raise ValueError("the gripper holds the cube in step 1 (release step t_R ≥ 1)")
+        self._advance(row, bool(open_gripper))
+
+    def _advance(self, row: np.ndarray, open_gripper: bool) -> None:
+        c = self.steps_done  # 0-based control step
+        model, data, lay, n_ctrl = self.model, self.data, self.layout, self.n_ctrl
+        first_open = open_gripper and self.release is None
+        if first_open:
+            self.release = c  # steps 1..c held the cube
+        if self.has_grip:
+            # the gripper is closed for steps 1..t_R, open after
+            row = np.append(row, 1.0 if self.release is None else 0.0)
+        # The weld (if any) lets go when the gripper command opens: at the end of step t_R when
+        # held; in the last physics step of step t_R + 1 when ramped (never for t_R = H).
+        weld_off = first_open and lay.weld >= 0
+        step, step1, step2 = mujoco.mj_step, mujoco.mj_step1, mujoco.mj_step2
+        ctrl = data.ctrl
+        held = self.command_hold == "zero"
+        if held:
+            ctrl[:] = row
+            if weld_off:
+                data.eq_active[lay.weld] = 0
+                step1(model, data)  # rebuild the constraints without the weld
+            per_step = None
+        else:
+            prev = self._prev_row
+            per_step = prev[None, :] + (row - prev)[None, :] * self._tau[:, None]
+        start, end = c * n_ctrl, (c + 1) * n_ctrl
+        idx = self._idx
+        while idx < len(self.points) and self.points[idx] <= end:
+            k, gap = self.points[idx], self._gaps[idx]
             if per_step is None:
-                ctrl[:] = rows[done]
-                if k == weld_off:
-                    data.eq_active[lay.weld] = 0
-                    step1(model, data)  # rebuild the constraints without the weld
-    _check_warnings(warn, task, name, n_total * dt)
+                step2(model, data)
+                if gap > 1:
+                    step(model, data, gap - 1)
+                step1(model, data)
+            else:
+                first = k - gap
+                for kk in range(first, k):
+                    ctrl[:] = per_step[kk - start]
+                    if weld_off and kk == end - 1:
+                        data.eq_active[lay.weld] = 0
+                        if kk == first:
+                            step1(model, data)  # rebuild the constraints without the weld
+                    if kk == first:
+                        step2(model, data)
+                    else:
+                        step(model, data)
+                step1(model, data)
+            self._record(idx)
+            idx += 1
+        self._idx = idx
+        self._prev_row = row
+        self.steps_done = c + 1
+        # MuJoCo counts unstable states (and resets them) rather than stopping: check the
+        # counters once per control step, so a blow-up is caught within 5 s / H.
+        _check_warnings(data.warning, self.task, self.preset.name, end * self.dt)
+
+    def result(self) -> RolloutResult:
+        """The episode's RolloutResult (as ``rollout`` gives); ValueError before the last step."""
+        if self.steps_done < self.horizon:
+            raise ValueError(
+                f"the episode has {self.horizon} control steps; {self.steps_done} are done"
+            )
+        release = None
+        if self.task == "throw":
+            release = self.release if self.release is not None else self.horizon
+        return _finish(self, release)
+
+
+def _finish(ep: Episode, release: int | None) -> RolloutResult:
+    """The RolloutResult of a finished episode: checks, objectives, trajectory."""
+    task, p, params, lay, dt = ep.task, ep.preset, ep.params, ep.layout, ep.dt
+    qpos, act, sensors, points = ep.qpos, ep.act, ep.sensors, ep.points
+    horizon, n_ctrl, n_obj, n_rec = ep.horizon, ep.n_ctrl, ep.n_obj, ep.n_rec
+    hold, rule, record_qpos, name = ep.command_hold, ep.objective_rule, ep.record_qpos, p.name
+    n_pts = len(points)
+    _check_warnings(ep.data.warning, task, name, points[-1] * dt)
 
     tip_pos = sensors[:, lay.eef_pos : lay.eef_pos + 3]
     tip_vel = sensors[:, lay.eef_linvel : lay.eef_linvel + 3]

@@ -113,7 +113,7 @@ def test_cli_refuses_bad_cells_with_one_line(tmp_path):
         (["--cells", "P=1"], "P=1 is not in the paper's grid"),
         (["--cells", "method=sgd"], "unknown method 'sgd'"),
         (["--trials", "20000"], "nothing above 10K"),
-        (["--cells", "method=redq"], "redq is not in this build"),
+        (["--cells", "method=redq", "--trials", "100"], "no cell of the paper's grid matches"),
         (["--bo-fit", "fast"], "--bo-fit must be warm or full"),
         (["--command-hold", "cubic"], "unknown --command-hold 'cubic'"),
     ):
