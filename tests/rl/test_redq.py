@@ -171,3 +171,13 @@ def test_the_trial_service_refuses_redq(api) -> None:
         detail = json.dumps(info.value.detail)
         assert method in detail and "bo-lei" in detail  # names the methods it does offer
         assert "redq" not in detail.replace(f"'{method}'", "")
+
+
+def test_pretraining_episodes_are_the_same_for_both_observation_sets() -> None:
+    # uniformly random commands from the run's seed: what the agent observes changes nothing
+    # until it learns (so the 250-trial cells of redq and redq-joints agree seed by seed)
+    a = bench.run_one(spec(2), None)
+    b = bench.run_one(spec(2, "redq-joints"), None)
+    assert objectives(a) == objectives(b) and [r["theta"] for r in a] == [r["theta"] for r in b]
+    c = bench.run_one(bench.RunSpec(**{**spec(2).__dict__, "seed": 1}), None)
+    assert objectives(c) != objectives(a)
