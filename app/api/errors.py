@@ -75,7 +75,7 @@ MAX_INPUT_CHARS = 200  # an echoed input longer than this is cut
 
 
 def _short(issue: dict[str, Any]) -> dict[str, Any]:
-    out = {k: issue[k] for k in ("loc", "msg", "type", "ctx") if k in issue}
+    out: dict[str, Any] = {k: issue[k] for k in ("loc", "msg", "type", "ctx") if k in issue}
     if "input" in issue:
         text = repr(issue["input"]) if not isinstance(issue["input"], str) else issue["input"]
         if len(text) > MAX_INPUT_CHARS or not isinstance(

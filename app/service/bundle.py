@@ -29,12 +29,12 @@ from app.service.experiments import get_experiment
 FORMAT = "handful-experiment-bundle"
 VERSION = 1
 _TABLE: dict[str, Table] = {
-    "experiment": Experiment.__table__,  # type: ignore[dict-item]
-    "trials": Trial.__table__,  # type: ignore[dict-item]
-    "measurements": Measurement.__table__,  # type: ignore[dict-item]
-    "confirmations": Confirmation.__table__,  # type: ignore[dict-item]
-    "artifacts": Artifact.__table__,  # type: ignore[dict-item]
-    "audit": AuditLog.__table__,  # type: ignore[dict-item]
+    "experiment": Experiment.__table__,
+    "trials": Trial.__table__,
+    "measurements": Measurement.__table__,
+    "confirmations": Confirmation.__table__,
+    "artifacts": Artifact.__table__,
+    "audit": AuditLog.__table__,
 }
 
 
@@ -77,6 +77,12 @@ def export_bundle(session: Session, experiment_id: int, artifacts_dir: Path) -> 
     return bundle
 
 
+def _insert(session: Session, table: Table, values: dict[str, Any]) -> int:
+    """INSERT one row; its new primary key."""
+    result = session.execute(insert(table).values(**values))
+    return int(result.inserted_primary_key[0])  # type: ignore[attr-defined]
+
+
 def _values(table: Table, row: dict[str, Any], **override: Any) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for col in table.columns:
@@ -103,15 +109,13 @@ def import_bundle(
     except KeyError as exc:
         raise InvalidInput(f"the bundle lacks {exc}") from None
     exp_t = _TABLE["experiment"]
-    new_exp = session.execute(insert(exp_t).values(**_values(exp_t, exp_row))).inserted_primary_key
-    exp_id = int(new_exp[0])
+    exp_id = _insert(session, exp_t, _values(exp_t, exp_row))
     trial_map: dict[int, int] = {}
     trials_t = _TABLE["trials"]
     for t in tables["trials"]:
-        key = session.execute(
-            insert(trials_t).values(**_values(trials_t, t, experiment_id=exp_id))
-        ).inserted_primary_key
-        trial_map[int(t["id"])] = int(key[0])
+        trial_map[int(t["id"])] = _insert(
+            session, trials_t, _values(trials_t, t, experiment_id=exp_id)
+        )
 
     def trial_of(row: dict[str, Any]) -> int:
         try:

@@ -106,7 +106,7 @@ def export_csv(session: Session, experiment_id: int) -> str:
     for t in trials:
         d = t.model_dump(mode="json")
         row = ["" if d[f] is None else d[f] for f in CSV_FIELDS]
-        ex = t.executed_theta or [""] * dim
+        ex: list[float] | list[str] = t.executed_theta or [""] * dim
         tail = ["" if d[f] is None else d[f] for f in CSV_TAIL[:-1]]
         w.writerow(
             [

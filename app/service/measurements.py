@@ -154,7 +154,9 @@ def store_measurement(
             "created_by": actor.username,
             "created_at": now,
         }
-        (repeat_id,) = db.execute(_INSERT_REPEAT, row).fetchone()
+        inserted = db.execute(_INSERT_REPEAT, row).fetchone()
+        assert inserted is not None  # INSERT ... RETURNING gives the row
+        (repeat_id,) = inserted
         stored.append(MeasurementRead(id=repeat_id, **row))
         all_values.append(float(v))
     before = trial.objective
