@@ -12,7 +12,7 @@ from sqlalchemy.orm import Session
 from app.db.base import utcnow
 from app.db.models import AuditLog, Experiment, Trial
 from app.db.prepared import Prepared
-from app.policy import Policy, PolicyError, PressureLimits
+from app.policy import HardwareCeilings, Policy, PolicyError, PressureLimits
 from app.service.audit import record
 from app.service.auth import Actor
 from app.service.errors import InvalidInput, NotFound
@@ -86,8 +86,17 @@ def optimizer_kwargs(exp: Experiment) -> dict[str, Any]:
     return kwargs
 
 
-def create_experiment(session: Session, spec: ExperimentCreate, *, actor: Actor) -> Experiment:
-    """Validate and store a new experiment (committed)."""
+def create_experiment(
+    session: Session,
+    spec: ExperimentCreate,
+    *,
+    actor: Actor,
+    ceilings: HardwareCeilings | None = None,
+) -> Experiment:
+    """Validate and store a new experiment (committed).
+
+    A hardware experiment's limits must lie within ``ceilings`` (the server's settings; the
+    paper robot's when None): they can only narrow them."""
     from app.optim import METHODS, OptimError, make_optimizer
 
     with_release = spec.with_release if spec.with_release is not None else spec.task == "throw"
@@ -107,7 +116,12 @@ def create_experiment(session: Session, spec: ExperimentCreate, *, actor: Actor)
                 source_pa=spec.limits.source_pa,
             )
         except (PolicyError, ValueError) as exc:
-            raise InvalidInput(f"limits: {exc}") from None
+            raise InvalidInput(f"limits: {_in_kpa(str(exc))}") from None
+        if spec.target == "hardware":
+            try:
+                (ceilings or HardwareCeilings()).check_limits(limits)
+            except PolicyError as exc:
+                raise InvalidInput(f"limits: {exc}") from None
     try:
         policy = Policy(
             levels=spec.levels, horizon=spec.horizon, with_release=with_release, limits=limits
@@ -159,6 +173,23 @@ def create_experiment(session: Session, spec: ExperimentCreate, *, actor: Actor)
     )
     session.commit()
     return exp
+
+
+def _in_kpa(message: str) -> str:
+    """A limits message of ``PressureLimits`` with its Pa numbers also in kPa."""
+    import re
+
+    def kpa(m: re.Match[str]) -> str:
+        return f"{float(m.group(1)) / 1000.0:g} kPa"
+
+    num = r"(-?[0-9.]+(?:e[+-]?[0-9]+)?)"
+
+    def span(m: re.Match[str]) -> str:
+        lo, hi = (float(m.group(i)) / 1000.0 for i in (1, 2))
+        return f"[{lo:g}, {hi:g}] kPa"
+
+    message = re.sub(rf"\[{num}, {num}\] Pa\b", span, message)
+    return re.sub(rf"{num} Pa\b", kpa, message)
 
 
 def _check_preset(preset: str) -> None:

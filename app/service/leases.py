@@ -21,7 +21,7 @@ from sqlalchemy.orm import Session
 
 from app.db.base import utcnow
 from app.db.models import Experiment, Lease, Trial
-from app.policy import N_CHAMBERS, Policy, PolicyError, schedule_hash
+from app.policy import N_CHAMBERS, HardwareCeilings, Policy, PolicyError, schedule_hash
 from app.service import lifecycle as lc
 from app.service.artifacts import decode_npz_b64, store_trajectory
 from app.service.audit import record
@@ -142,10 +142,16 @@ def sweep_expired(session: Session, *, max_attempts: int, now: datetime | None =
 
 
 # --- claim -----------------------------------------------------------------------------------
-def _gate(session: Session, exp: Experiment, trial: Trial, now: datetime) -> str | None:
+def _gate(
+    session: Session,
+    exp: Experiment,
+    trial: Trial,
+    now: datetime,
+    ceilings: HardwareCeilings | None = None,
+) -> str | None:
     """Why this queued trial may not be handed to a worker (None: it may)."""
     try:
-        check_schedule_safe(exp, trial.pressure_schedule_pa, trial.release_step)
+        check_schedule_safe(exp, trial.pressure_schedule_pa, trial.release_step, ceilings=ceilings)
     except SafetyViolation as exc:
         return str(exc)
     if exp.target == "hardware":
@@ -167,6 +173,7 @@ def claim(
     actor: Actor,
     lease_seconds: float,
     max_attempts: int,
+    ceilings: HardwareCeilings | None = None,
 ) -> list[ClaimRead]:
     """Hand up to ``max_trials`` queued trials of ``target`` to a worker, each under a lease.
 
@@ -192,7 +199,7 @@ def claim(
         if len(out) >= body.max_trials:
             break
         exp = trial.experiment
-        refusal = _gate(session, exp, trial, now)
+        refusal = _gate(session, exp, trial, now, ceilings)
         if refusal is not None:
             lc.transition(
                 session,

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from app.db.session import Database
-from app.policy import schedule_hash
+from app.policy import HardwareCeilings, schedule_hash
 from app.service import lifecycle as lc
 from app.service.artifacts import npz_to_json, store_trajectory
 from app.service.auth import Actor
@@ -155,12 +155,17 @@ class PreviewRunner:
         self._lock = threading.Lock()
         self._max_jobs = max_jobs
 
-    def submit(self, db: Database, trial_id: int) -> PreviewJobRead:
-        """Queue a preview of the trial's current schedule (checked against its limits)."""
+    def submit(
+        self, db: Database, trial_id: int, *, ceilings: HardwareCeilings | None = None
+    ) -> PreviewJobRead:
+        """Queue a preview of the trial's current schedule (checked against its limits and
+        the robot's ceilings)."""
         with db.read() as s:
             trial = get_trial(s, trial_id)
             exp = trial.experiment
-            sched = check_schedule_safe(exp, trial.pressure_schedule_pa, trial.release_step)
+            sched = check_schedule_safe(
+                exp, trial.pressure_schedule_pa, trial.release_step, ceilings=ceilings
+            )
             job = PreviewJob(
                 job_id=uuid.uuid4().hex,
                 trial_id=trial.id,

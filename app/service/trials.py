@@ -14,7 +14,13 @@ from sqlalchemy.orm import Session
 from app.db.base import utcnow
 from app.db.models import AuditLog, Confirmation, Experiment, Lease, Trial
 from app.db.session import Database
-from app.policy import Policy, PolicyError, PressureLimitError, schedule_hash
+from app.policy import (
+    HardwareCeilings,
+    Policy,
+    PolicyError,
+    PressureLimitError,
+    schedule_hash,
+)
 from app.service import lifecycle as lc
 from app.service.audit import record
 from app.service.auth import Actor
@@ -25,7 +31,13 @@ from app.service.errors import (
     NotFound,
     SafetyViolation,
 )
-from app.service.experiments import get_experiment, optimizer_kwargs, policy_of, touch
+from app.service.experiments import (
+    get_experiment,
+    limits_of,
+    optimizer_kwargs,
+    policy_of,
+    touch,
+)
 from app.service.schemas import ResolveIn, TrialDetail, TrialRead
 
 
@@ -89,8 +101,36 @@ def decode_checked(policy: Policy, theta: Any) -> tuple[np.ndarray, np.ndarray, 
     return np.asarray(theta, dtype=np.float64), decoded.pressure_schedule_pa, decoded.release_step
 
 
-def check_schedule_safe(exp: Experiment, schedule: Any, release_step: int | None) -> np.ndarray:
-    """Re-check a stored/forged schedule against the experiment's limits (SafetyViolation)."""
+DEFAULT_CEILINGS = HardwareCeilings()
+
+
+def check_ceilings(
+    exp: Experiment, schedule: np.ndarray, ceilings: HardwareCeilings | None
+) -> None:
+    """A hardware experiment's limits and schedule within the robot's absolute ceilings
+    (the server's settings; the paper robot's when None), whatever the experiment says."""
+    if exp.target != "hardware":
+        return
+    ceilings = ceilings or DEFAULT_CEILINGS
+    limits = limits_of(exp)
+    if limits is None:
+        raise SafetyViolation("hardware experiment carries no pressure limits")
+    try:
+        ceilings.check_limits(limits)
+        ceilings.check_schedule(schedule, np.asarray(limits.nominal_pa))
+    except PolicyError as exc:
+        raise SafetyViolation(f"beyond the robot's hardware ceilings: {exc}") from None
+
+
+def check_schedule_safe(
+    exp: Experiment,
+    schedule: Any,
+    release_step: int | None,
+    *,
+    ceilings: HardwareCeilings | None = None,
+) -> np.ndarray:
+    """Re-check a stored/forged schedule against the experiment's limits and the robot's
+    ceilings (SafetyViolation)."""
     policy = policy_of(exp)
     try:
         sched = policy.check(np.asarray(schedule, dtype=np.float64))
@@ -98,6 +138,7 @@ def check_schedule_safe(exp: Experiment, schedule: Any, release_step: int | None
         raise SafetyViolation(f"schedule beyond the pressure limits: {exc}") from None
     except (PolicyError, ValueError, TypeError) as exc:
         raise SafetyViolation(f"schedule refused: {exc}") from None
+    check_ceilings(exp, sched, ceilings)
     if exp.with_release:
         if release_step is None or not 1 <= int(release_step) <= exp.horizon:
             raise SafetyViolation(f"release_step must be in 1..{exp.horizon}, got {release_step}")
@@ -138,9 +179,11 @@ def _new_trial(
     note: str = "",
     predicted: tuple[float, float] | None = None,
     initial_status: str | None = None,
+    ceilings: HardwareCeilings | None = None,
 ) -> Trial:
     """Create a trial (proposed), then move it on: sim → queued, hardware → awaiting."""
     th, schedule, release = decode_checked(policy_of(exp), theta)
+    check_ceilings(exp, schedule, ceilings)
     now = utcnow()
     trial = Trial(
         experiment_id=exp.id,
@@ -280,6 +323,7 @@ def suggest(
     *,
     actor: Actor,
     timings: dict[str, float] | None = None,
+    ceilings: HardwareCeilings | None = None,
 ) -> list[TrialRead]:
     """Ask the optimiser for ``n`` trials given the completed and pending ones; store them.
 
@@ -315,6 +359,7 @@ def suggest(
                         actor=actor,
                         index=index + i,
                         predicted=predicted,
+                        ceilings=ceilings,
                     )
                 )
             touch(exp)
@@ -324,7 +369,13 @@ def suggest(
 
 
 def attach(
-    session: Session, experiment_id: int, theta: list[float], *, note: str, actor: Actor
+    session: Session,
+    experiment_id: int,
+    theta: list[float],
+    *,
+    note: str,
+    actor: Actor,
+    ceilings: HardwareCeilings | None = None,
 ) -> TrialRead:
     """Add a trial with an operator-chosen θ (checked like any other), committed."""
     exp = get_experiment(session, experiment_id, for_update=True)
@@ -339,6 +390,7 @@ def attach(
         index=_next_index(session, exp),
         note=note,
         predicted=predicted,
+        ceilings=ceilings,
     )
     touch(exp)
     session.commit()
@@ -449,7 +501,14 @@ def resolve(session: Session, trial_id: int, body: ResolveIn, *, actor: Actor) -
     return out
 
 
-def confirm(session: Session, trial_id: int, given_hash: str, *, actor: Actor) -> TrialRead:
+def confirm(
+    session: Session,
+    trial_id: int,
+    given_hash: str,
+    *,
+    actor: Actor,
+    ceilings: HardwareCeilings | None = None,
+) -> TrialRead:
     """An operator's go-ahead for exactly this schedule (hash), re-checked against the limits."""
     trial = get_trial(session, trial_id, for_update=True)
     exp = trial.experiment
@@ -467,7 +526,7 @@ def confirm(session: Session, trial_id: int, given_hash: str, *, actor: Actor) -
             f"schedule_hash {given_hash[:12]}… is not trial {trial.id}'s current schedule "
             f"({current[:12]}…); reload the trial and confirm what it will run"
         )
-    check_schedule_safe(exp, trial.pressure_schedule_pa, trial.release_step)
+    check_schedule_safe(exp, trial.pressure_schedule_pa, trial.release_step, ceilings=ceilings)
     now = utcnow()
     session.add(
         Confirmation(

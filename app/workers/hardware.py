@@ -56,6 +56,7 @@ def execute_claim(driver: Driver, claim: dict[str, Any]) -> HardwareOutcome:
             experiment,
             trial_id=trial.get("id"),
             robot_max_pa=getattr(driver, "max_pressure_pa", None),
+            robot_ceilings=getattr(driver, "ceilings", None),
         )
     except SafetyRefusal as exc:
         log.error("refused trial %s: %s", trial.get("id"), exc)

@@ -12,7 +12,7 @@ from fastapi import APIRouter, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import PlainTextResponse, StreamingResponse
 
-from app.api.deps import DbDep, Operator, Reader, ReadSession
+from app.api.deps import DbDep, Operator, Reader, ReadSession, SettingsDep
 from app.service import data, experiments, trials
 from app.service.errors import NotFound
 from app.service.schemas import (
@@ -32,10 +32,16 @@ router = APIRouter(prefix="/experiments", tags=["experiments"])
 
 
 @router.post("", status_code=201)
-def create_experiment(body: ExperimentCreate, db: DbDep, actor: Operator) -> ExperimentRead:
-    """Create an experiment (task, target, policy P/H/release, limits, optimiser, budget)."""
+def create_experiment(
+    body: ExperimentCreate, db: DbDep, settings: SettingsDep, actor: Operator
+) -> ExperimentRead:
+    """Create an experiment (task, target, policy P/H/release, limits, optimiser, budget).
+
+    A hardware experiment's limits must lie within the robot's ceilings (server settings)."""
     with db.write() as session:
-        exp = experiments.create_experiment(session, body, actor=actor)
+        exp = experiments.create_experiment(
+            session, body, actor=actor, ceilings=settings.robot.ceilings()
+        )
         return experiments.read_experiment(session, exp.id)
 
 
@@ -73,7 +79,12 @@ def list_trials(
 
 @router.post("/{experiment_id}/suggest", status_code=201)
 def suggest(
-    experiment_id: int, body: SuggestIn, db: DbDep, actor: Operator, response: Response
+    experiment_id: int,
+    body: SuggestIn,
+    db: DbDep,
+    settings: SettingsDep,
+    actor: Operator,
+    response: Response,
 ) -> list[TrialRead]:
     """Ask the optimiser (rebuilt from the database) for n new trials.
 
@@ -82,7 +93,14 @@ def suggest(
     """
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    out = trials.suggest(db, experiment_id, body.n, actor=actor, timings=timings)
+    out = trials.suggest(
+        db,
+        experiment_id,
+        body.n,
+        actor=actor,
+        timings=timings,
+        ceilings=settings.robot.ceilings(),
+    )
     total_ms = (time.perf_counter() - t0) * 1e3
     response.headers["Server-Timing"] = (
         f"optimizer;dur={timings.get('optimizer_s', 0.0) * 1e3:.3f}, total;dur={total_ms:.3f}"
@@ -91,10 +109,19 @@ def suggest(
 
 
 @router.post("/{experiment_id}/trials", status_code=201)
-def attach_trial(experiment_id: int, body: AttachIn, db: DbDep, actor: Operator) -> TrialRead:
+def attach_trial(
+    experiment_id: int, body: AttachIn, db: DbDep, settings: SettingsDep, actor: Operator
+) -> TrialRead:
     """Add a trial with a θ the operator chose."""
     with db.write() as session:
-        return trials.attach(session, experiment_id, body.theta, note=body.note, actor=actor)
+        return trials.attach(
+            session,
+            experiment_id,
+            body.theta,
+            note=body.note,
+            actor=actor,
+            ceilings=settings.robot.ceilings(),
+        )
 
 
 @router.get("/{experiment_id}/export", response_model=None)

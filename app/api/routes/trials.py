@@ -83,10 +83,16 @@ def resolve(trial_id: int, body: ResolveIn, db: DbDep, actor: Operator) -> Trial
 
 
 @router.post("/trials/{trial_id}/confirm")
-def confirm(trial_id: int, body: ConfirmIn, db: DbDep, actor: Operator) -> TrialRead:
-    """Confirm a hardware trial's exact schedule (by its hash) so a worker may run it."""
+def confirm(
+    trial_id: int, body: ConfirmIn, db: DbDep, settings: SettingsDep, actor: Operator
+) -> TrialRead:
+    """Confirm a hardware trial's exact schedule (by its hash) so a worker may run it.
+
+    Refused unless this operator previewed exactly this schedule (``POST .../preview``)."""
     with db.write() as session:
-        return trials.confirm(session, trial_id, body.schedule_hash, actor=actor)
+        return trials.confirm(
+            session, trial_id, body.schedule_hash, actor=actor, ceilings=settings.robot.ceilings()
+        )
 
 
 @router.post("/trials/{trial_id}/run")
@@ -96,9 +102,11 @@ def run(trial_id: int, db: DbDep, settings: SettingsDep, actor: Operator) -> Tri
 
 
 @router.post("/trials/{trial_id}/preview", status_code=202)
-def preview(trial_id: int, db: DbDep, previews: PreviewsDep, _: Operator) -> PreviewJobRead:
+def preview(
+    trial_id: int, db: DbDep, previews: PreviewsDep, settings: SettingsDep, _: Operator
+) -> PreviewJobRead:
     """Start a sim rollout of exactly this trial's schedule; poll /api/previews/{job_id}."""
-    return previews.submit(db, trial_id)
+    return previews.submit(db, trial_id, ceilings=settings.robot.ceilings())
 
 
 @router.get("/previews/{job_id}")

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from app.policy import HardwareCeilings
 from app.workers.drivers.base import (
     DriverCommand,
     DriverError,
@@ -142,6 +143,8 @@ class StandinDriver:
 
     name = "standin"
     max_pressure_pa = 205_000.0  # the lab's supply: nothing above it can reach the chambers
+    #: the paper robot's: 205 kPa supply, 30 kPa offsets, chambers rated 40 psi
+    ceilings = HardwareCeilings(source_pa=205_000.0, max_step_pa=30_000.0)
 
     def __init__(
         self,
