@@ -255,6 +255,14 @@ class HandfulClient:
             "POST", f"/api/trials/{trial_id}/confirm", json={"schedule_hash": schedule_hash}
         )
 
+    def preview_and_confirm(self, trial: JSON, *, timeout_s: float = 120.0) -> JSON:
+        """An operator's two steps for a hardware trial: preview its schedule (waiting for the
+        rollout to finish), then confirm exactly that schedule. Returns the confirmed trial."""
+        job = self.wait_preview(self.preview(trial["id"])["job_id"], timeout_s=timeout_s)
+        if job["status"] != "done":
+            raise HandfulAPIError(409, f"preview failed: {job['error']}", "preview_failed")
+        return self.confirm_trial(trial["id"], job["schedule_hash"])
+
     def run_trial(self, trial_id: int) -> JSON:
         """Simulate a queued sim trial in the service; returns the finished trial."""
         return self.request("POST", f"/api/trials/{trial_id}/run")

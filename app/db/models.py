@@ -200,6 +200,24 @@ class Confirmation(Base):
     confirmed_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
 
 
+class Preview(Base):
+    """A sim preview of a trial's exact schedule that an operator ran to the end (what a
+    confirmation must be bound to): who, when, the schedule's hash, the settings it ran with."""
+
+    __tablename__ = "previews"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    trial_id: Mapped[int] = mapped_column(ForeignKey("trials.id", ondelete="CASCADE"), index=True)
+    schedule_hash: Mapped[str] = mapped_column(String(64))
+    #: the experiment's command-hold setting the preview ran with (None: the experiment has none)
+    hold: Mapped[str | None] = mapped_column(String(64))
+    sim_preset: Mapped[str] = mapped_column(String(32))
+    job_id: Mapped[str] = mapped_column(String(32))
+    predicted_objective: Mapped[float | None] = mapped_column(Float)
+    previewed_by: Mapped[str] = mapped_column(String(64))
+    previewed_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
 class IdempotencyKey(Base):
     """A write already applied under a client's ``Idempotency-Key`` (per scope)."""
 

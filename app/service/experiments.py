@@ -44,6 +44,15 @@ def policy_of(exp: Experiment) -> Policy:
     )
 
 
+def hold_setting(exp: Any) -> str | None:
+    """The experiment's command-hold setting as text, or None when it has none.
+
+    (The setting itself is issue 12's; a preview and a confirmation must agree on it.)
+    """
+    hold = getattr(exp, "command_hold", None)
+    return None if hold is None else str(hold)
+
+
 def touch(exp: Experiment) -> None:
     """Mark the experiment changed (its version is the live pages' change signal)."""
     exp.version = (exp.version or 0) + 1

@@ -16,13 +16,16 @@ from typing import Any
 
 import numpy as np
 
+from app.db.base import utcnow
+from app.db.models import Preview
 from app.db.session import Database
 from app.policy import HardwareCeilings, schedule_hash
 from app.service import lifecycle as lc
 from app.service.artifacts import npz_to_json, store_trajectory
+from app.service.audit import record
 from app.service.auth import Actor
 from app.service.errors import Conflict, NotFound
-from app.service.experiments import touch
+from app.service.experiments import hold_setting, touch
 from app.service.measurements import check_value, store_measurement
 from app.service.schemas import PreviewJobRead, TrialRead
 from app.service.trials import check_schedule_safe, get_trial
@@ -126,6 +129,9 @@ class PreviewJob:
     schedule: np.ndarray
     release_step: int | None
     schedule_hash: str
+    previewed_by: str = ""
+    hold: str | None = None
+    db: Database | None = None
     status: str = "queued"
     progress: float = 0.0
     error: str | None = None
@@ -146,6 +152,37 @@ class PreviewJob:
         )
 
 
+def record_preview(job: PreviewJob) -> None:
+    """Store a finished preview (committed, audited): a confirmation is bound to it."""
+    assert job.db is not None
+    with job.db.write() as s:
+        trial = get_trial(s, job.trial_id)
+        s.add(
+            Preview(
+                trial_id=trial.id,
+                schedule_hash=job.schedule_hash,
+                hold=job.hold,
+                sim_preset=job.preset,
+                job_id=job.job_id,
+                predicted_objective=job.result.get("predicted_objective"),
+                previewed_by=job.previewed_by,
+                previewed_at=utcnow(),
+            )
+        )
+        record(
+            s,
+            actor=job.previewed_by,
+            action="trial.preview",
+            entity="trial",
+            entity_id=trial.id,
+            experiment_id=trial.experiment_id,
+            trial_id=trial.id,
+            detail={"schedule_hash": job.schedule_hash, "hold": job.hold, "job_id": job.job_id},
+        )
+        touch(trial.experiment)
+        s.commit()
+
+
 class PreviewRunner:
     """Runs previews in a thread pool; keeps the last ``max_jobs`` jobs in memory."""
 
@@ -156,10 +193,16 @@ class PreviewRunner:
         self._max_jobs = max_jobs
 
     def submit(
-        self, db: Database, trial_id: int, *, ceilings: HardwareCeilings | None = None
+        self,
+        db: Database,
+        trial_id: int,
+        *,
+        actor: Actor | None = None,
+        ceilings: HardwareCeilings | None = None,
     ) -> PreviewJobRead:
         """Queue a preview of the trial's current schedule (checked against its limits and
-        the robot's ceilings)."""
+        the robot's ceilings). When it has run to the end it is recorded (``previews``: who,
+        when, the schedule's hash, the hold setting): what ``actor`` may then confirm."""
         with db.read() as s:
             trial = get_trial(s, trial_id)
             exp = trial.experiment
@@ -174,6 +217,9 @@ class PreviewRunner:
                 schedule=sched,
                 release_step=trial.release_step,
                 schedule_hash=schedule_hash(sched, trial.release_step),
+                previewed_by=actor.username if actor is not None else "",
+                hold=hold_setting(exp),
+                db=db if actor is not None else None,
             )
         with self._lock:
             self._jobs[job.job_id] = job
@@ -202,6 +248,8 @@ class PreviewRunner:
                 "bend_limit_hits": [int(j) for j in res.bend_limit_hits],
                 "trajectory": npz_to_json(raw),
             }
+            if job.db is not None:
+                record_preview(job)
             job.status, job.progress = "done", 1.0
         except SimulationDiverged as exc:
             job.status, job.error = "error", f"simulation diverged: {exc}"

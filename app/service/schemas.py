@@ -350,18 +350,36 @@ class MeasurementReceipt(BaseModel):
         )
 
 
+class PreviewRead(BaseModel):
+    """A finished preview of a trial's schedule: what a confirmation is bound to."""
+
+    model_config = ConfigDict(from_attributes=True)
+
+    schedule_hash: str
+    hold: str | None
+    sim_preset: str
+    job_id: str
+    predicted_objective: float | None
+    previewed_by: str
+    previewed_at: datetime
+
+
 class TrialDetail(TrialRead):
-    """A trial with its raw measurements and its audit trail."""
+    """A trial with its raw measurements, its previews and its audit trail."""
 
     measurements: list[MeasurementRead]
+    previews: list[PreviewRead] = Field(default_factory=list)
     audit: list[AuditRead]
 
     @classmethod
-    def build_detail(cls, t: Trial, audit: list[AuditLog]) -> TrialDetail:
+    def build_detail(
+        cls, t: Trial, audit: list[AuditLog], previews: list[Any] | None = None
+    ) -> TrialDetail:
         base = TrialRead.build(t).model_dump()
         return cls(
             **base,
             measurements=[MeasurementRead.model_validate(m) for m in t.measurements],
+            previews=[PreviewRead.model_validate(p) for p in previews or []],
             audit=[AuditRead.model_validate(a) for a in audit],
         )
 

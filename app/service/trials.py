@@ -12,7 +12,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.db.base import utcnow
-from app.db.models import AuditLog, Confirmation, Experiment, Lease, Trial
+from app.db.models import AuditLog, Confirmation, Experiment, Lease, Preview, Trial
 from app.db.session import Database
 from app.policy import (
     HardwareCeilings,
@@ -29,10 +29,12 @@ from app.service.errors import (
     Conflict,
     InvalidInput,
     NotFound,
+    NotPreviewed,
     SafetyViolation,
 )
 from app.service.experiments import (
     get_experiment,
+    hold_setting,
     limits_of,
     optimizer_kwargs,
     policy_of,
@@ -57,7 +59,10 @@ def read_trial(session: Session, trial_id: int) -> TrialDetail:
     audit = list(
         session.scalars(select(AuditLog).where(AuditLog.trial_id == trial.id).order_by(AuditLog.id))
     )
-    return TrialDetail.build_detail(trial, audit)
+    previews = list(
+        session.scalars(select(Preview).where(Preview.trial_id == trial.id).order_by(Preview.id))
+    )
+    return TrialDetail.build_detail(trial, audit, previews)
 
 
 def list_trials(
@@ -501,6 +506,29 @@ def resolve(session: Session, trial_id: int, body: ResolveIn, *, actor: Actor) -
     return out
 
 
+def check_previewed(session: Session, trial: Trial, current_hash: str, *, actor: Actor) -> None:
+    """NotPreviewed unless ``actor`` ran a preview of exactly this schedule (hash) with the
+    experiment's current command-hold setting."""
+    hold = hold_setting(trial.experiment)
+    previews = session.execute(
+        select(Preview.schedule_hash, Preview.hold).where(
+            Preview.trial_id == trial.id, Preview.previewed_by == actor.username
+        )
+    ).all()
+    if any(h == current_hash and p_hold == hold for h, p_hold in previews):
+        return
+    if any(h == current_hash for h, _ in previews):
+        why = "you previewed it with another command-hold setting"
+    elif previews:
+        why = "your preview was of a different schedule"
+    else:
+        why = "you have not previewed it"
+    raise NotPreviewed(
+        f"cannot confirm trial #{trial.index}: {why}; preview exactly "
+        f"this schedule ({current_hash[:12]}…) in 3D, look at it, then confirm"
+    )
+
+
 def confirm(
     session: Session,
     trial_id: int,
@@ -527,6 +555,7 @@ def confirm(
             f"({current[:12]}…); reload the trial and confirm what it will run"
         )
     check_schedule_safe(exp, trial.pressure_schedule_pa, trial.release_step, ceilings=ceilings)
+    check_previewed(session, trial, current, actor=actor)
     now = utcnow()
     session.add(
         Confirmation(

@@ -59,7 +59,7 @@ def test_sim_trial_is_requeued_then_failed(op, worker):
 def test_hardware_trial_goes_to_needs_review_and_stays(op, worker):
     exp = new_exp(op, target="hardware", limits={"nominal_pa": 100_000.0})
     [t] = op.suggest(exp["id"])
-    op.confirm_trial(t["id"], t["schedule_hash"])
+    op.preview_and_confirm(t)
     [c] = worker.claim("hw-dead", "hardware")
     tr = wait_status(op, t["id"], "needs_review")
     assert "never rerun on its own" in tr["status_reason"]

@@ -286,7 +286,7 @@ def test_confirm_binds_the_exact_schedule(api):
     assert err.status == 409 and err.code == "confirmation_mismatch"
     err = error_of(api.confirm_trial, trial["id"], "not-a-hash")
     assert err.status == 422
-    t = api.confirm_trial(trial["id"], trial["schedule_hash"])
+    t = api.preview_and_confirm(trial)
     assert t["status"] == "queued" and t["confirmed_by"] == "operator"
     assert t["confirmed_hash"] == trial["schedule_hash"] and t["confirmed_at"]
     err = error_of(api.confirm_trial, trial["id"], trial["schedule_hash"])

@@ -295,7 +295,7 @@ def test_bad_measurements_fail_and_review_from_the_trial_page(
         limits={"nominal_pa": 100_000.0, "max_step_pa": 30_000.0, "source_pa": 205_000.0},
     )
     trial, lost = api.suggest(experiment["id"], n=2)
-    api.confirm_trial(trial["id"], trial["schedule_hash"])
+    api.preview_and_confirm(trial)
     login(page, server, "operator")
     page.goto(f"{server.url}/trials/{trial['id']}")
     page.wait_for_selector("#measure-form")
@@ -327,7 +327,7 @@ def test_bad_measurements_fail_and_review_from_the_trial_page(
     assert page.locator("#measure-form").count() == 0
 
     # a worker claims the other trial and vanishes: its lease expires, a person decides
-    api.confirm_trial(lost["id"], lost["schedule_hash"])
+    api.preview_and_confirm(lost)
     [claim] = server.client("worker").claim("vanishing-worker", "hardware")
     assert claim["trial"]["id"] == lost["id"]
     deadline = time.monotonic() + 30

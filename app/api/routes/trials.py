@@ -103,10 +103,13 @@ def run(trial_id: int, db: DbDep, settings: SettingsDep, actor: Operator) -> Tri
 
 @router.post("/trials/{trial_id}/preview", status_code=202)
 def preview(
-    trial_id: int, db: DbDep, previews: PreviewsDep, settings: SettingsDep, _: Operator
+    trial_id: int, db: DbDep, previews: PreviewsDep, settings: SettingsDep, actor: Operator
 ) -> PreviewJobRead:
-    """Start a sim rollout of exactly this trial's schedule; poll /api/previews/{job_id}."""
-    return previews.submit(db, trial_id, ceilings=settings.robot.ceilings())
+    """Start a sim rollout of exactly this trial's schedule; poll /api/previews/{job_id}.
+
+    Once done it is recorded as this operator's preview of that schedule (what confirming
+    a hardware trial requires)."""
+    return previews.submit(db, trial_id, actor=actor, ceilings=settings.robot.ceilings())
 
 
 @router.get("/previews/{job_id}")
