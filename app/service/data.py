@@ -150,7 +150,14 @@ def model_insight(session: Session, experiment_id: int, *, n_points: int = 41) -
     exp = get_experiment(session, experiment_id)
     inputs = optimizer_inputs(session, exp)
     obs = inputs.observations
-    base = {"experiment_id": exp.id, "method": exp.method, "n_observations": len(obs)}
+    n_penalised = len(inputs.refused_ids) if inputs.refused_penalty is not None else 0
+    base = {
+        "experiment_id": exp.id,
+        "method": exp.method,
+        "n_observations": len(obs) - n_penalised,
+        "n_refused": len(inputs.refused_ids),
+        "refused_penalty": inputs.refused_penalty,
+    }
     if not obs:
         return ModelRead(
             **base,
@@ -173,7 +180,11 @@ def model_insight(session: Session, experiment_id: int, *, n_points: int = 41) -
     assert best is not None
     inc = list(best.executed_theta if best.executed_theta is not None else best.theta)
     head = dict(
-        base, incumbent_theta=inc, incumbent_objective=best.objective, incumbent_trial_id=best.id
+        base,
+        incumbent_theta=inc,
+        incumbent_objective=best.objective,
+        incumbent_trial_id=best.id,
+        incumbent_trial_index=best.index,
     )
     opt = build_optimizer(inputs)
     if not hasattr(opt, "predict"):

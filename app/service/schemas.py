@@ -402,8 +402,13 @@ class ModelRead(BaseModel):
     incumbent_theta: list[float] | None
     incumbent_objective: float | None
     incumbent_trial_id: int | None
+    incumbent_trial_index: int | None = Field(None, description="the trial's number (index)")
     slices: list[SliceRead]
     message: str = ""
+    n_refused: int = Field(0, description="abandoned trials: never suggested again")
+    refused_penalty: float | None = Field(
+        None, description="the objective the model is told each abandoned trial scored"
+    )
 
 
 # --- workers, leases, results ----------------------------------------------------------------

@@ -4,7 +4,7 @@ resolve, confirm (hardware gate) and run in the service (sim, the pre-worker pat
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -238,12 +238,30 @@ class OptimizerInputs:
     kwargs: dict[str, Any]
     observations: list[Any]  # app.optim.Observation, in trial index order
     pending: np.ndarray | None  # (k, dim)
-    observed_ids: tuple[int, ...]  # trials behind ``observations``
+    observed_ids: tuple[int, ...]  # trials behind ``observations`` (refused ones included)
     pending_ids: frozenset[int]  # trials behind ``pending``
+    #: schedule hashes of abandoned trials: never suggested again
+    refused_hashes: frozenset[str] = frozenset()
+    #: the objective an abandoned trial counts as (below the worst seen), None before any
+    #: measurement (then abandoned θ count as pending: taken, never to be suggested)
+    refused_penalty: float | None = None
+    refused_ids: tuple[int, ...] = ()
+
+
+def refusal_penalty(values: list[float]) -> float | None:
+    """What an abandoned trial counts as: the worst objective seen minus the objectives'
+    spread (their magnitude when they are all equal), so the model learns the region was
+    refused. None without any objective."""
+    if not values:
+        return None
+    lo, hi = min(values), max(values)
+    spread = hi - lo if hi > lo else max(abs(lo), 1.0)
+    return lo - spread
 
 
 def optimizer_inputs(session: Session, exp: Experiment) -> OptimizerInputs:
-    """Completed trials with an objective (executed θ when reported) and pending θ."""
+    """Completed trials with an objective (executed θ when reported), pending θ, and the
+    abandoned trials (refused by an operator) as penalised observations."""
     from app.optim import Observation
 
     trials = list(
@@ -253,6 +271,7 @@ def optimizer_inputs(session: Session, exp: Experiment) -> OptimizerInputs:
     pending = []
     observed_ids: list[int] = []
     pending_ids: set[int] = set()
+    refused: list[Trial] = []
     for t in trials:
         if t.status == lc.COMPLETED and t.objective is not None:
             observed_ids.append(t.id)
@@ -269,6 +288,14 @@ def optimizer_inputs(session: Session, exp: Experiment) -> OptimizerInputs:
             # unknown.
             pending.append(t.theta)
             pending_ids.add(t.id)
+        elif t.status == lc.ABANDONED:
+            refused.append(t)
+    penalty = refusal_penalty([o.value for o in obs])
+    for t in refused:
+        if penalty is None:
+            pending.append(t.theta)
+        else:
+            obs.append(Observation(tuple(float(v) for v in t.theta), penalty, None))
     dim = exp.horizon + int(exp.with_release)
     return OptimizerInputs(
         method=exp.method,
@@ -277,8 +304,13 @@ def optimizer_inputs(session: Session, exp: Experiment) -> OptimizerInputs:
         kwargs=optimizer_kwargs(exp),
         observations=obs,
         pending=np.asarray(pending, dtype=np.float64).reshape(-1, dim) if pending else None,
-        observed_ids=tuple(observed_ids),
+        observed_ids=tuple(observed_ids) + tuple(t.id for t in refused),
         pending_ids=frozenset(pending_ids),
+        refused_hashes=frozenset(
+            schedule_hash(t.pressure_schedule_pa, t.release_step) for t in refused
+        ),
+        refused_penalty=penalty if refused else None,
+        refused_ids=tuple(t.id for t in refused),
     )
 
 
@@ -321,6 +353,54 @@ def ask(
     return thetas, mean, std
 
 
+def ask_avoiding_refused(
+    inputs: OptimizerInputs,
+    policy: Policy,
+    n: int,
+    *,
+    timings: dict[str, float] | None = None,
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """``ask``, never returning a θ that decodes to an abandoned trial's schedule (nor two
+    equal schedules in one batch): such θ are handed back to the optimiser as pending and
+    it is asked again; after 3 rounds a seeded random θ with a new schedule takes the place.
+    """
+    if not inputs.refused_hashes:
+        return ask(inputs, n, timings=timings)
+
+    def key(theta: np.ndarray) -> str:
+        d = policy.decode(theta)
+        return schedule_hash(d.pressure_schedule_pa, d.release_step)
+
+    extra: list[np.ndarray] = []
+    for _ in range(3):
+        pend = inputs.pending
+        if extra:
+            more = np.asarray(extra, dtype=np.float64).reshape(-1, inputs.dim)
+            pend = more if pend is None else np.concatenate([pend, more])
+        thetas, mean, std = ask(replace(inputs, pending=pend), n, timings=timings)
+        seen = set(inputs.refused_hashes)
+        bad = []
+        for i, th in enumerate(thetas):
+            h = key(th)
+            if h in seen:
+                bad.append(i)
+            seen.add(h)
+        if not bad:
+            return thetas, mean, std
+        extra.extend(thetas[i] for i in bad)
+    rng = np.random.default_rng([inputs.seed, len(inputs.observations), len(extra)])
+    for i in bad:
+        for _ in range(10_000):
+            th = rng.random(inputs.dim)
+            if key(th) not in seen:
+                break
+        thetas[i] = th
+        seen.add(key(th))
+        if mean is not None and std is not None:
+            mean[i] = std[i] = np.nan
+    return thetas, mean, std
+
+
 def suggest(
     db: Database,
     experiment_id: int,
@@ -342,7 +422,8 @@ def suggest(
             exp = get_experiment(s, experiment_id)
             _check_can_add(s, exp, n)
             inputs = optimizer_inputs(s, exp)
-        thetas, mean, std = ask(inputs, n, timings=timings)
+            policy = policy_of(exp)
+        thetas, mean, std = ask_avoiding_refused(inputs, policy, n, timings=timings)
         with db.write() as s:
             exp = get_experiment(s, experiment_id, for_update=True)
             now = optimizer_inputs(s, exp)
@@ -354,7 +435,9 @@ def suggest(
             index = _next_index(s, exp)
             trials = []
             for i in range(n):
-                predicted = None if mean is None or std is None else (mean[i], std[i])
+                predicted = None
+                if mean is not None and std is not None and np.isfinite(mean[i]):
+                    predicted = (mean[i], std[i])
                 trials.append(
                     _new_trial(
                         s,
