@@ -237,6 +237,19 @@ class HandfulClient:
                     return receipt
             raise
 
+    def withdraw_measurement(self, measurement_id: int, reason: str) -> JSON:
+        """Withdraw a repeat (kept, no longer counted); returns the trial's new objective."""
+        return self.request(
+            "POST", f"/api/measurements/{measurement_id}/withdraw", json={"reason": reason}
+        )
+
+    def supersede_measurement(
+        self, measurement_id: int, value: float, unit: str, reason: str, note: str = ""
+    ) -> JSON:
+        """Correct a repeat (the old one kept, withdrawn); returns the trial's new objective."""
+        body = {"value": value, "unit": unit, "reason": reason, "note": note}
+        return self.request("POST", f"/api/measurements/{measurement_id}/supersede", json=body)
+
     def fail_trial(self, trial_id: int, reason: str) -> JSON:
         return self.request("POST", f"/api/trials/{trial_id}/fail", json={"reason": reason})
 

@@ -77,6 +77,9 @@ class Experiment(Base):
     n_initial: Mapped[int] = mapped_column(Integer)
     seed: Mapped[int] = mapped_column(Integer)
     optimizer_settings: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    #: measurement sources the objective is made of, comma-separated (None: the default for
+    #: task and target, ``app.service.schemas.objective_sources_of``)
+    objective_sources: Mapped[str | None] = mapped_column(String(64))
     # bookkeeping
     budget: Mapped[int | None] = mapped_column(Integer)
     status: Mapped[str] = mapped_column(String(16), default="active")
@@ -142,9 +145,14 @@ class Measurement(Base):
     value: Mapped[float] = mapped_column(Float)
     unit: Mapped[str] = mapped_column(String(16))
     note: Mapped[str] = mapped_column(Text, default="")
-    source: Mapped[str] = mapped_column(String(16))  # operator | worker
+    source: Mapped[str] = mapped_column(String(16))  # tape | tracker | sim | imported
     created_by: Mapped[str] = mapped_column(String(64))
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    # corrections: a repeat is never deleted; it is withdrawn (and maybe superseded) instead
+    withdrawn_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
+    withdrawn_by: Mapped[str | None] = mapped_column(String(64))
+    withdrawn_reason: Mapped[str | None] = mapped_column(Text)
+    supersedes_id: Mapped[int | None] = mapped_column(ForeignKey("measurements.id"))
 
     trial: Mapped[Trial] = relationship(back_populates="measurements")
 

@@ -123,7 +123,7 @@ def import_observations(
             trial,
             [(ob.objective, unit, ob.note or "imported")],
             actor=actor,
-            source="operator",
+            source="imported",
         )
         if ob.objective_sem is not None:
             trial.objective_sem = float(ob.objective_sem)

@@ -157,6 +157,9 @@ def create_experiment(
         n_initial=spec.n_initial if spec.n_initial is not None else policy.dim + 1,
         seed=spec.seed,
         optimizer_settings=dict(spec.optimizer_settings),
+        objective_sources=",".join(dict.fromkeys(spec.objective_sources))
+        if spec.objective_sources
+        else None,
         budget=spec.budget,
         status="active",
         notes=spec.notes,

@@ -364,7 +364,7 @@ def report_result(
             trial,
             [(body.objective, exp.objective_unit, note)],
             actor=actor,
-            source="worker",
+            source="tracker" if exp.target == "hardware" else "sim",
         )
     detail: dict[str, Any] = {"lease_id": lease.id, "worker_id": lease.worker_id}
     if body.summary:

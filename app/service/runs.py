@@ -98,7 +98,7 @@ def run_trial(db: Database, trial_id: int, *, actor: Actor, artifacts_dir: Path)
                 trial,
                 [(value, exp.objective_unit, f"simulated ({preset})")],
                 actor=actor,
-                source="worker",
+                source="sim",
             )
             lc.transition(
                 s,

@@ -14,11 +14,38 @@ from pydantic import BaseModel, ConfigDict, Field
 from app.db.models import AuditLog, Experiment, Trial
 from app.policy import schedule_hash
 
+DEFAULT_SOURCES = {"tip_speed": "tracker", "throw": "tape", "hammer": "tape"}
+
+
+def default_objective_sources(task: str, target: str) -> list[str]:
+    """The sources an objective is made of unless the experiment says otherwise: on hardware
+    the tape (throw, hammer) or the tracker (tip speed); in simulation the simulator (and a
+    value a script posts for a sim trial, as tape: a sim trial has one source or the other)."""
+    if target == "sim":
+        return ["sim", "tape", "imported"]
+    return [DEFAULT_SOURCES[task], "imported"]
+
+
+def objective_sources_of(exp: Experiment) -> list[str]:
+    """The experiment's objective sources (its own, else the default for task and target)."""
+    return sources_list(exp.objective_sources, exp.task, exp.target)
+
+
+def sources_list(stored: str | None, task: str, target: str) -> list[str]:
+    """A stored ``objective_sources`` (comma-separated, or None: the default) as a list."""
+    if stored:
+        return stored.split(",")
+    return default_objective_sources(task, target)
+
+
 TaskName = Literal["throw", "hammer", "tip_speed"]
 Target = Literal["sim", "hardware"]
 ExperimentStatus = Literal["active", "paused", "completed", "archived"]
 Acquisition = Literal["logei", "ucb", "qlognei"]
 Unit = Literal["m", "m/s", "N", "score"]
+#: what measured a repeat: the operator's tape, the robot's tip tracker, the simulator, or an
+#: imported observation
+Source = Literal["tape", "tracker", "sim", "imported"]
 
 
 class _In(BaseModel):
@@ -59,6 +86,13 @@ class ExperimentCreate(_In):
     objective_unit: Unit | None = Field(
         None, description="unit of measurements; default m/s for tip_speed, else score"
     )
+    objective_sources: list[Source] | None = Field(
+        None,
+        min_length=1,
+        max_length=4,
+        description="measurement sources the objective is made of; default: tape (throw, "
+        "hammer on hardware), tracker (tip_speed on hardware), sim and tape (sim), and imported",
+    )
 
 
 class ExperimentPatch(_In):
@@ -84,6 +118,7 @@ class ExperimentRead(BaseModel):
     target: str
     sim_preset: str
     objective_unit: str
+    objective_sources: list[str]
     levels: int
     horizon: int
     with_release: bool
@@ -131,6 +166,7 @@ class ExperimentRead(BaseModel):
             target=exp.target,
             sim_preset=exp.sim_preset,
             objective_unit=exp.objective_unit,
+            objective_sources=objective_sources_of(exp),
             levels=exp.levels,
             horizon=exp.horizon,
             with_release=exp.with_release,
@@ -196,6 +232,24 @@ class RepeatIn(_In):
     value: float
     unit: Unit
     note: str = Field("", max_length=2000)
+    source: Literal["tape", "tracker"] | None = Field(
+        None, description="what measured it; default: the experiment's first objective source"
+    )
+
+
+class WithdrawIn(_In):
+    """Withdraw a repeat (kept, no longer counted), with the operator's reason."""
+
+    reason: str = Field(min_length=1, max_length=2000)
+
+
+class SupersedeIn(_In):
+    """Replace a repeat by a corrected value (the old one is kept, withdrawn), with a reason."""
+
+    value: float
+    unit: Unit
+    note: str = Field("", max_length=2000)
+    reason: str = Field(min_length=1, max_length=2000)
 
 
 class MeasurementsIn(_In):
@@ -227,6 +281,10 @@ class MeasurementRead(BaseModel):
     source: str
     created_by: str
     created_at: datetime
+    withdrawn_at: datetime | None = None
+    withdrawn_by: str | None = None
+    withdrawn_reason: str | None = None
+    supersedes_id: int | None = None
 
 
 class AuditRead(BaseModel):

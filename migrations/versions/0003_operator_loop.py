@@ -36,8 +36,40 @@ def upgrade() -> None:
         sa.PrimaryKeyConstraint("id"),
     )
     op.create_index("ix_previews_trial_id", "previews", ["trial_id"], unique=False)
+    with op.batch_alter_table("experiments", schema=None) as batch_op:
+        batch_op.add_column(sa.Column("objective_sources", sa.String(length=64), nullable=True))
+    with op.batch_alter_table("measurements", schema=None) as batch_op:
+        batch_op.add_column(sa.Column("withdrawn_at", sa.DateTime(timezone=True), nullable=True))
+        batch_op.add_column(sa.Column("withdrawn_by", sa.String(length=64), nullable=True))
+        batch_op.add_column(sa.Column("withdrawn_reason", sa.Text(), nullable=True))
+        batch_op.add_column(sa.Column("supersedes_id", sa.Integer(), nullable=True))
+        batch_op.create_foreign_key(
+            "fk_measurements_supersedes_id", "measurements", ["supersedes_id"], ["id"]
+        )
+    # sources: who typed it (operator) / which worker (worker) -> what measured it
+    op.execute(
+        "UPDATE measurements SET source = 'imported' WHERE source = 'operator' AND trial_id IN "
+        "(SELECT id FROM trials WHERE source = 'import')"
+    )
+    op.execute("UPDATE measurements SET source = 'tape' WHERE source = 'operator'")
+    op.execute(
+        "UPDATE measurements SET source = 'tracker' WHERE source = 'worker' AND trial_id IN "
+        "(SELECT t.id FROM trials t JOIN experiments e ON e.id = t.experiment_id "
+        "WHERE e.target = 'hardware')"
+    )
+    op.execute("UPDATE measurements SET source = 'sim' WHERE source = 'worker'")
 
 
 def downgrade() -> None:
+    op.execute("UPDATE measurements SET source = 'operator' WHERE source IN ('tape', 'imported')")
+    op.execute("UPDATE measurements SET source = 'worker' WHERE source IN ('tracker', 'sim')")
+    with op.batch_alter_table("measurements", schema=None) as batch_op:
+        batch_op.drop_constraint("fk_measurements_supersedes_id", type_="foreignkey")
+        batch_op.drop_column("supersedes_id")
+        batch_op.drop_column("withdrawn_reason")
+        batch_op.drop_column("withdrawn_by")
+        batch_op.drop_column("withdrawn_at")
+    with op.batch_alter_table("experiments", schema=None) as batch_op:
+        batch_op.drop_column("objective_sources")
     op.drop_index("ix_previews_trial_id", table_name="previews")
     op.drop_table("previews")

@@ -65,9 +65,9 @@ def test_measurements_keep_every_repeat_and_give_mean_and_sem(api, queued):
     assert [m["value"] for m in receipt["stored"]] == [6.0]
     t = api.get_trial(trial["id"])
     assert [(m["value"], m["source"], m["created_by"]) for m in t["measurements"]] == [
-        (2.0, "operator", "operator"),
-        (4.0, "operator", "operator"),
-        (6.0, "operator", "operator"),
+        (2.0, "tape", "operator"),
+        (4.0, "tape", "operator"),
+        (6.0, "tape", "operator"),
     ]
     assert t["measurements"][0]["note"] == "first"
     assert t["measurements"][2]["id"] == receipt["stored"][0]["id"]
@@ -131,7 +131,7 @@ def test_a_retry_after_a_lost_reply_stores_once_and_gets_the_first_receipt(live_
         ([{"value": 1.0, "unit": "furlongs"}], "unit"),
         ([], "repeats"),
         ([{"value": "fast", "unit": "m/s"}], "value"),
-        ([{"value": 1.0, "unit": "m/s"}, {"value": -3.0, "unit": "m/s"}], "repeats[1]"),
+        ([{"value": 1.0, "unit": "m/s"}, {"value": -3.0, "unit": "m/s"}], "repeat 2"),
     ],
 )
 def test_bad_measurements_are_refused_whole(api, queued, repeats, words):

@@ -91,9 +91,7 @@ def test_sim_claim_heartbeat_result(op, worker):
         == trial["pressure_schedule_pa"]
     )
     detail = op.get_trial(trial["id"])
-    assert [(m["source"], m["created_by"]) for m in detail["measurements"]] == [
-        ("worker", "worker")
-    ]
+    assert [(m["source"], m["created_by"]) for m in detail["measurements"]] == [("sim", "worker")]
     assert op.trajectory(trial["id"])["tip_speed_m_s"] == [2.5] * 11
     # idempotent per lease: the same report again gives the same reply and stores nothing
     again = worker.report_result(

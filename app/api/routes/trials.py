@@ -25,8 +25,10 @@ from app.service.schemas import (
     PreviewJobRead,
     ReasonIn,
     ResolveIn,
+    SupersedeIn,
     TrialDetail,
     TrialRead,
+    WithdrawIn,
 )
 
 router = APIRouter(tags=["trials"])
@@ -58,6 +60,27 @@ async def add_measurements(
             s, trial_id, body, idempotency_key=idempotency_key, actor=actor
         ),
     )
+    return json_response(receipt, status_code=201)
+
+
+@router.post("/measurements/{measurement_id}/withdraw", response_model=MeasurementReceipt)
+def withdraw_measurement(
+    measurement_id: int, body: WithdrawIn, db: DbDep, actor: Operator
+) -> MeasurementReceipt:
+    """Withdraw a repeat with a reason: kept (and audited), no longer in the objective."""
+    with db.write() as session:
+        return measurements.withdraw_measurement(session, measurement_id, body.reason, actor=actor)
+
+
+@router.post(
+    "/measurements/{measurement_id}/supersede", status_code=201, response_model=MeasurementReceipt
+)
+def supersede_measurement(
+    measurement_id: int, body: SupersedeIn, db: DbDep, actor: Operator
+) -> Response:
+    """Correct a repeat: the old value is kept, withdrawn with the reason; the new one counts."""
+    with db.write() as session:
+        receipt = measurements.supersede_measurement(session, measurement_id, body, actor=actor)
     return json_response(receipt, status_code=201)
 
 
