@@ -139,6 +139,12 @@ def create_experiment(
         raise InvalidInput(str(exc)) from None
     if spec.method not in METHODS:
         raise InvalidInput(f"method {spec.method!r} is not one of {', '.join(METHODS)}")
+    n_initial = spec.n_initial if spec.n_initial is not None else policy.dim + 1
+    if spec.budget is not None and n_initial > spec.budget and spec.method in _bo_methods():
+        raise InvalidInput(
+            f"n_initial: {n_initial} random initial trials do not fit in a budget of "
+            f"{spec.budget} trials; lower n_initial or raise the budget"
+        )
     exp = Experiment(
         name=spec.name,
         task=spec.task,
@@ -154,7 +160,7 @@ def create_experiment(
         method=spec.method,
         acquisition=spec.acquisition,
         kappa=spec.kappa,
-        n_initial=spec.n_initial if spec.n_initial is not None else policy.dim + 1,
+        n_initial=n_initial,
         seed=spec.seed,
         optimizer_settings=dict(spec.optimizer_settings),
         objective_sources=",".join(dict.fromkeys(spec.objective_sources))
@@ -185,6 +191,12 @@ def create_experiment(
     )
     session.commit()
     return exp
+
+
+def _bo_methods() -> frozenset[str]:
+    from app.optim import BO_METHODS
+
+    return frozenset(BO_METHODS)
 
 
 def _in_kpa(message: str) -> str:
@@ -232,9 +244,21 @@ def _stats(session: Session, ids: list[int]) -> tuple[dict[int, dict[str, int]],
     ).all()
     for eid, status, n in rows:
         counts[eid][status] = n
-    best: dict[int, tuple[int, float]] = {}
+    # ran, but no measurement from the objective's sources yet: what an operator must measure
+    awaiting = session.execute(
+        select(Trial.experiment_id, func.count())
+        .where(
+            Trial.experiment_id.in_(ids),
+            Trial.status == COMPLETED,
+            Trial.objective.is_(None),
+        )
+        .group_by(Trial.experiment_id)
+    ).all()
+    for eid, n in awaiting:
+        counts[eid]["awaiting_measurement"] = n
+    best: dict[int, tuple[int, float, int]] = {}
     rows2 = session.execute(
-        select(Trial.experiment_id, Trial.id, Trial.objective)
+        select(Trial.experiment_id, Trial.id, Trial.objective, Trial.index)
         .where(
             Trial.experiment_id.in_(ids),
             Trial.status == COMPLETED,
@@ -242,9 +266,9 @@ def _stats(session: Session, ids: list[int]) -> tuple[dict[int, dict[str, int]],
         )
         .order_by(Trial.experiment_id, Trial.objective.desc(), Trial.index)
     ).all()
-    for eid, tid, obj in rows2:
+    for eid, tid, obj, index in rows2:
         if eid not in best:
-            best[eid] = (tid, obj)
+            best[eid] = (tid, obj, index)
     return counts, best
 
 
@@ -268,6 +292,17 @@ def patch_experiment(
     """Change status / notes / budget (committed, audited)."""
     exp = get_experiment(session, experiment_id)
     changes = patch.model_dump(exclude_unset=True)
+    if changes.get("budget") is not None:
+        used = session.scalar(
+            select(func.count())
+            .select_from(Trial)
+            .where(Trial.experiment_id == exp.id, Trial.status != "abandoned")
+        )
+        if changes["budget"] < (used or 0):
+            raise InvalidInput(
+                f"budget: {changes['budget']} trials is below the {used} trials this experiment "
+                "already has (abandoned ones not counted)"
+            )
     for field, value in changes.items():
         if field in ("status", "notes") and value is None:
             raise InvalidInput(f"{field} cannot be null")

@@ -141,6 +141,12 @@ class ExperimentRead(BaseModel):
     status_counts: dict[str, int] = Field(default_factory=dict)
     best_objective: float | None = None
     best_trial_id: int | None = None
+    best_trial_index: int | None = None
+    #: trials that ran and await a measurement from the objective's sources
+    n_awaiting_measurement: int = 0
+    #: trials that count against the budget (all but abandoned), and whether it is reached
+    n_budget_used: int = 0
+    budget_reached: bool = False
 
     @classmethod
     def build(
@@ -148,9 +154,10 @@ class ExperimentRead(BaseModel):
         exp: Experiment,
         *,
         status_counts: dict[str, int] | None = None,
-        best: tuple[int, float] | None = None,
+        best: tuple[int, float] | tuple[int, float, int] | None = None,
     ) -> ExperimentRead:
         counts = status_counts or {}
+        used = sum(v for k, v in counts.items() if k not in ("abandoned", "awaiting_measurement"))
         limits = None
         if exp.limits_nominal_pa is not None:
             assert exp.limits_max_step_pa is not None and exp.limits_source_pa is not None
@@ -185,10 +192,14 @@ class ExperimentRead(BaseModel):
             created_by=exp.created_by,
             created_at=exp.created_at,
             updated_at=exp.updated_at,
-            n_trials=sum(counts.values()),
-            status_counts=counts,
+            n_trials=sum(v for k, v in counts.items() if k != "awaiting_measurement"),
+            status_counts={k: v for k, v in counts.items() if k != "awaiting_measurement"},
             best_objective=best[1] if best else None,
             best_trial_id=best[0] if best else None,
+            best_trial_index=best[2] if best is not None and len(best) > 2 else None,  # type: ignore[misc]
+            n_awaiting_measurement=counts.get("awaiting_measurement", 0),
+            n_budget_used=used,
+            budget_reached=exp.budget is not None and used >= exp.budget,
         )
 
 
