@@ -5,46 +5,48 @@ function listOf(answer) {
   return Array.isArray(answer) ? answer : (answer && (answer.items || answer.experiments)) || [];
 }
 
-/** Trials done and best so far: from the experiment's own summary, else from its trials. */
-async function progress(exp) {
-  const done = exp.status_counts ? (exp.status_counts.completed ?? 0) : undefined;
-  const best = exp.best_objective ?? exp.best_so_far;
-  if (done !== undefined && best !== undefined) return { done, best };
-  const trials = listOf(await api("GET", `/api/experiments/${exp.id}/trials`));
-  const completed = trials.filter((t) => t.status === "completed" && t.objective !== null);
-  return {
-    done: completed.length,
-    best: completed.length ? Math.max(...completed.map((t) => t.objective)) : null,
-  };
+/** A count that needs the operator: a link to the experiment, highlighted when not zero. */
+function needs(exp, n, what) {
+  return el("td", { class: n ? "needs" : "muted", dataset: { what } },
+    n ? el("a", { href: `/experiments/${exp.id}` }, String(n)) : "0");
 }
 
+function row(exp) {
+  const counts = exp.status_counts || {};
+  const done = counts.completed ?? 0;
+  return el("tr", { class: "clickable", dataset: { id: exp.id }, onclick: () => { location.href = `/experiments/${exp.id}`; } },
+    el("td", {}, exp.id),
+    el("td", {}, el("a", { href: `/experiments/${exp.id}` }, exp.name || `experiment ${exp.id}`)),
+    el("td", {}, badge(exp.status), exp.budget_reached ? el("div", { class: "small budget-reached" }, "budget reached") : null),
+    el("td", {}, exp.task),
+    el("td", {}, exp.target),
+    needs(exp, counts.awaiting_confirmation ?? 0, "awaiting_confirmation"),
+    needs(exp, exp.n_awaiting_measurement ?? 0, "awaiting_measurement"),
+    el("td", { class: "done" }, `${done} / ${exp.budget ?? "∞"}`),
+    el("td", {}, fmt(exp.best_objective)),
+    el("td", {}, fmtTime(exp.created_at)));
+}
+
+let lastKey = null;
+
 async function load() {
-  await requireLogin();
   const tbody = $("#experiments-table tbody");
   try {
     const experiments = listOf(await api("GET", "/api/experiments"));
-    $("#list-empty").hidden = experiments.length > 0;
-    tbody.replaceChildren();
-    for (const exp of experiments) {
-      const doneCell = el("td", {}, "…");
-      const bestCell = el("td", {}, "…");
-      const row = el("tr", { class: "clickable", dataset: { id: exp.id }, onclick: () => { location.href = `/experiments/${exp.id}`; } },
-        el("td", {}, exp.id),
-        el("td", {}, el("a", { href: `/experiments/${exp.id}` }, exp.name || `experiment ${exp.id}`)),
-        el("td", {}, badge(exp.status)),
-        el("td", {}, exp.task),
-        el("td", {}, exp.target),
-        doneCell, bestCell,
-        el("td", {}, fmtTime(exp.created_at)));
-      tbody.append(row);
-      progress(exp).then(({ done, best }) => {
-        doneCell.textContent = `${done} / ${exp.budget ?? "∞"}`;
-        bestCell.textContent = fmt(best);
-      }).catch((err) => { doneCell.textContent = "?"; bestCell.textContent = err.message; });
+    const key = JSON.stringify(experiments.map((e) => [e.id, e.version, e.status, e.n_awaiting_measurement, e.status_counts]));
+    if (key !== lastKey) {
+      lastKey = key;
+      $("#list-empty").hidden = experiments.length > 0;
+      tbody.replaceChildren(...experiments.map(row));
     }
+    $("#list-live").textContent = "live";
+    showError("#list-error", null);
   } catch (err) {
-    showError("#list-error", err);
+    $("#list-live").textContent = `updates paused: ${err.message}`;
   }
 }
 
-load();
+requireLogin().then(async () => {
+  await load();
+  setInterval(load, 2000); // the list follows what needs the operator, live
+});

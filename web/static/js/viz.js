@@ -3,11 +3,25 @@ import { api } from "./api.js";
 import { $, el, fmt } from "./ui.js";
 
 let generation = 0; // a newer request supersedes an older one still polling
+let shownTrialId = null; // the trial the 3D card shows (null: closed)
+
+/** Close the 3D card unless it shows `trialId`: never a previous trial's preview next to
+ * another trial's safety gate. */
+export function closeUnlessFor(trialId) {
+  if (shownTrialId !== null && shownTrialId !== trialId) closeCard();
+}
+
+function closeCard() {
+  generation++;
+  shownTrialId = null;
+  $("#viz-card").hidden = true;
+  $("#viz-frame-holder").replaceChildren();
+}
 
 function card() {
   const c = $("#viz-card");
   c.hidden = false;
-  $("#viz-close").onclick = () => { generation++; c.hidden = true; $("#viz-frame-holder").replaceChildren(); };
+  $("#viz-close").onclick = closeCard;
   return c;
 }
 
@@ -43,12 +57,13 @@ const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
 export async function openPreview(trial, incumbentId) {
   const gen = ++generation;
   card();
-  $("#viz-title").textContent = `preview of trial ${trial.index ?? trial.id}`;
+  shownTrialId = trial.id;
+  $("#viz-title").textContent = `preview of trial ${trial.index}`;
   $("#viz-error").textContent = "";
   $("#viz-legend").textContent = "";
   $("#viz-frame-holder").replaceChildren();
   progress(0.02, "asking the server for a preview…");
-  card().scrollIntoView({ block: "start" });
+  ($("#next-card") || card()).scrollIntoView({ block: "start" });
   try {
     const { job_id: jobId } = await api("POST", `/api/trials/${trial.id}/preview`);
     const started = Date.now();
@@ -66,10 +81,12 @@ export async function openPreview(trial, incumbentId) {
     const result = job.result || job;
     const hits = result.bend_limit_hits || [];
     const words = [
-      `Sim preview of trial ${trial.index ?? trial.id}: predicted max tip speed ${fmt(result.predicted_tip_speed)} m/s.`,
+      `Sim preview of trial ${trial.index}: predicted max tip speed ${fmt(result.predicted_tip_speed)} m/s.`,
       hits.length ? `WARNING: joint${hits.length > 1 ? "s" : ""} ${hits.join(", ")} would reach the bend limit.` : "No joint reaches its bend limit.",
     ];
     $("#next-preview-summary")?.replaceChildren(words.join(" "));
+    const state = document.getElementById("preview-state");
+    if (state) state.textContent = `Previewed by you just now (schedule ${String(job.schedule_hash).slice(0, 12)}…): you may confirm it.`;
     await embed({ trial_id: trial.id, preview_job_id: jobId, overlay_trial_id: incumbentId ?? null }, words.join(" "), gen);
   } catch (err) {
     if (gen !== generation) return;
@@ -82,7 +99,8 @@ export async function openPreview(trial, incumbentId) {
 export async function openReplay(trial, overlayId) {
   const gen = ++generation;
   card();
-  $("#viz-title").textContent = `trial ${trial.index ?? trial.id}`;
+  shownTrialId = trial.id;
+  $("#viz-title").textContent = `trial ${trial.index}`;
   $("#viz-error").textContent = "";
   $("#viz-frame-holder").replaceChildren();
   progress(0.3, "preparing the replay…");
