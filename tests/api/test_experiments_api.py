@@ -230,7 +230,12 @@ def test_events_stream_accepts_a_token_in_the_query(live_server, api):
 
 
 def test_openapi_docs_and_health(live_server):
-    assert httpx.get(live_server.url + "/docs").status_code == 200
+    docs = httpx.get(live_server.url + "/docs")
+    assert docs.status_code == 200
+    # served from the installed package: nothing from a CDN (the page works offline)
+    assert "cdn." not in docs.text and "/docs-assets/swagger-ui-bundle.js" in docs.text
+    for asset in ("swagger-ui-bundle.js", "swagger-ui.css"):
+        assert httpx.get(f"{live_server.url}/docs-assets/{asset}").status_code == 200
     paths = httpx.get(live_server.url + "/openapi.json").json()["paths"]
     for path in (
         "/api/experiments/{experiment_id}/suggest",
