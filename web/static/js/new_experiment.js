@@ -115,7 +115,10 @@ form.addEventListener("submit", async (ev) => {
     const exp = await api("POST", "/api/experiments", { body });
     location.href = `/experiments/${exp.id}`;
   } catch (err) {
-    if (!Object.keys(err.fields).length) err.fields = placeServerMessage(err.message);
+    // the robot's ceilings come back as "limits: …": put each next to its own kPa field
+    const placed = placeServerMessage(err.fields.limits ? `limits: ${err.fields.limits}` : err.message);
+    if (err.fields.limits && Object.keys(placed).length) delete err.fields.limits;
+    if (!Object.keys(err.fields).length || Object.keys(placed).length) err.fields = { ...err.fields, ...placed };
     const unplaced = showFieldErrors(form, err.fields);
     $("#form-error").textContent = Object.keys(err.fields).length
       ? ["The server refused some fields (marked in red).", ...unplaced].join("\n")
