@@ -34,10 +34,10 @@ function progress(fraction, label) {
   }
 }
 
-function viserUrl(port, key) {
-  const host = location.hostname.includes(":") ? `[${location.hostname}]` : location.hostname;
-  const ws = `${location.protocol === "https:" ? "wss" : "ws"}://${host}:${port}/view/${key}`;
-  return `${location.protocol}//${host}:${port}/?websocket=${ws}&hideViserLogo`;
+/** The view through the main port (proxied to viser): one forwarded port is enough. */
+function viserUrl(view) {
+  const ws = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}${view.proxy_websocket_path}`;
+  return `${location.origin}${view.proxy_url}?websocket=${encodeURIComponent(ws)}&hideViserLogo`;
 }
 
 async function embed(body, legend, gen) {
@@ -47,7 +47,7 @@ async function embed(body, legend, gen) {
   progress(null);
   $("#viz-legend").textContent = [legend || `Showing ${view.label}.`, view.overlay_label ? `Blue, see-through: the best trial so far, ${view.overlay_label}.` : ""].filter(Boolean).join(" ");
   $("#viz-frame-holder").replaceChildren(el("iframe", {
-    id: "viz-frame", src: viserUrl(view.port, view.key), title: `3D view: ${view.label}`, allow: "fullscreen",
+    id: "viz-frame", src: viserUrl(view), title: `3D view: ${view.label}`, allow: "fullscreen",
   }));
 }
 
