@@ -127,6 +127,7 @@ _TRIAL_TO_MEASURE = Prepared(
         Experiment.__table__.c.objective_sources,
         Experiment.__table__.c.task,
         Experiment.__table__.c.target,
+        _TRIALS.c.index,
     )
     .join(Experiment.__table__, Experiment.__table__.c.id == _TRIALS.c.experiment_id)
     .where(_TRIALS.c.id == bindparam("trial_id"))
@@ -135,7 +136,7 @@ _TRIAL_TO_MEASURE = Prepared(
 _TrialToMeasure = namedtuple(
     "_TrialToMeasure",
     "id experiment_id status objective objective_unit leased key_seen objective_sources task "
-    "target",
+    "target index",
 )
 _COUNTED = ("objective", "objective_sem", "n_measurements", "updated_at")
 _TRIAL_KEY = sa_inspect(Trial).identity_key_from_primary_key
@@ -382,7 +383,7 @@ def add_measurements(
         _check_key_unused(db, idempotency_key, digest)
     if row.status not in MEASURABLE:
         raise IllegalTransition(
-            f"cannot add measurements: trial {row.id} is {row.status}"
+            f"cannot add measurements: trial #{row.index} is {row.status}"
             + (" (confirm and run it first)" if row.status in lc.PENDING else ""),
             current=row.status,
         )

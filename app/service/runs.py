@@ -52,11 +52,12 @@ def run_trial(db: Database, trial_id: int, *, actor: Actor, artifacts_dir: Path)
         trial = get_trial(s, trial_id, for_update=True)
         exp = trial.experiment
         if exp.target != "sim":
-            raise Conflict(f"trial {trial.id} is a hardware trial; a hardware worker runs it")
+            raise Conflict(f"trial #{trial.index} is a hardware trial; a hardware worker runs it")
         lc.check_transition(trial, lc.RUNNING, action="run")
         if trial.status != lc.QUEUED:
             raise lc.IllegalTransition(
-                f"cannot run: trial {trial.id} is {trial.status}, not queued", current=trial.status
+                f"cannot run: trial #{trial.index} is {trial.status}, not queued",
+                current=trial.status,
             )
         sched = check_schedule_safe(exp, trial.pressure_schedule_pa, trial.release_step)
         release = trial.release_step

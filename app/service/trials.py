@@ -552,7 +552,7 @@ def resolve(session: Session, trial_id: int, body: ResolveIn, *, actor: Actor) -
     trial = get_trial(session, trial_id, for_update=True)
     if trial.status != lc.NEEDS_REVIEW:
         raise lc.IllegalTransition(
-            f"cannot resolve: trial {trial.id} is {trial.status}, not needs_review",
+            f"cannot resolve: trial #{trial.index} is {trial.status}, not needs_review",
             current=trial.status,
         )
     exp = trial.experiment
@@ -567,7 +567,7 @@ def resolve(session: Session, trial_id: int, body: ResolveIn, *, actor: Actor) -
     elif body.decision == "complete":
         if trial.objective is None:
             raise Conflict(
-                f"cannot complete trial {trial.id}: it has no measurement; post one first"
+                f"cannot complete trial #{trial.index}: it has no measurement; post one first"
             )
         new = lc.COMPLETED
     elif body.decision == "fail":
@@ -624,17 +624,17 @@ def confirm(
     trial = get_trial(session, trial_id, for_update=True)
     exp = trial.experiment
     if exp.target != "hardware":
-        raise Conflict(f"trial {trial.id} is a sim trial; only hardware trials are confirmed")
+        raise Conflict(f"trial #{trial.index} is a sim trial; only hardware trials are confirmed")
     lc.check_transition(trial, lc.QUEUED, action="confirm")
     if trial.status != lc.AWAITING_CONFIRMATION:
         raise lc.IllegalTransition(
-            f"cannot confirm: trial {trial.id} is {trial.status}, not awaiting_confirmation",
+            f"cannot confirm: trial #{trial.index} is {trial.status}, not awaiting_confirmation",
             current=trial.status,
         )
     current = schedule_hash(trial.pressure_schedule_pa, trial.release_step)
     if given_hash != current:
         raise ConfirmationMismatch(
-            f"schedule_hash {given_hash[:12]}… is not trial {trial.id}'s current schedule "
+            f"schedule_hash {given_hash[:12]}… is not trial #{trial.index}'s current schedule "
             f"({current[:12]}…); reload the trial and confirm what it will run"
         )
     check_schedule_safe(exp, trial.pressure_schedule_pa, trial.release_step, ceilings=ceilings)

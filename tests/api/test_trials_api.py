@@ -209,7 +209,7 @@ def test_fail_abandon_and_illegal_transitions(api):
     t = api.fail_trial(a["id"], "the arm hit the table")
     assert t["status"] == "failed" and t["status_reason"] == "the arm hit the table"
     err = error_of(api.abandon_trial, a["id"], "x")
-    assert err.status == 409 and f"trial {a['id']} is failed" in err.detail
+    assert err.status == 409 and f"trial #{a['index']} is failed" in err.detail
     t = api.abandon_trial(b["id"], "bad idea")
     assert t["status"] == "abandoned"
     err = error_of(api.fail_trial, b["id"], "x")
