@@ -69,7 +69,8 @@ def downgrade() -> None:
         batch_op.drop_column("withdrawn_reason")
         batch_op.drop_column("withdrawn_by")
         batch_op.drop_column("withdrawn_at")
-    with op.batch_alter_table("experiments", schema=None) as batch_op:
-        batch_op.drop_column("objective_sources")
+    # natively (SQLite ≥ 3.35): a batch copy of experiments would drop the old table, and with
+    # foreign keys on that deletes every trial and measurement (ON DELETE CASCADE)
+    op.drop_column("experiments", "objective_sources")
     op.drop_index("ix_previews_trial_id", table_name="previews")
     op.drop_table("previews")
