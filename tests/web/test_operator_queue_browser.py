@@ -114,6 +114,14 @@ def test_forms_say_what_is_wrong_in_their_units(
     assert "source_pa" not in note.inner_text() and "[0]" not in note.inner_text()
     page.screenshot(path=str(screenshots / "new_experiment_errors.png"), full_page=True)
     assert [e["name"] for e in api.list_experiments()] == []
+    # within the ceilings it is created; the operator picks what the objective is made of
+    page.fill("#f-source", "205")
+    page.select_option("#f-objective_sources", "tracker")
+    page.click("#create-button")
+    page.wait_for_url(re.compile(r"/experiments/\d+$"))
+    [made] = api.list_experiments()
+    assert made["objective_sources"] == ["tracker", "imported"]
+    page.locator("#exp-summary").filter(has_text="from tracker + imported").wait_for()
 
     # a sim trial is scored by the simulator: no operator measurement form
     sim = api.create_experiment(name="sim", task="tip_speed", levels=3, sim_preset="fast")

@@ -72,7 +72,7 @@ function renderHeader() {
     `${e.task} on ${e.target}`,
     `P = ${e.levels}, H = ${e.horizon}${e.with_release ? " + release step" : ""}`,
     `${e.method}${e.acquisition ? ` (${e.acquisition}${e.kappa !== null && e.kappa !== undefined ? `, κ = ${e.kappa}` : ""})` : ""}, ${e.n_initial} initial, seed ${e.seed}`,
-    `objective in ${e.objective_unit}`,
+    `objective in ${e.objective_unit} from ${(e.objective_sources || []).join(" + ")}`,
     limitsText(e),
     `${done} / ${e.budget ?? "∞"} trials done`,
     e.budget_reached ? `budget of ${e.budget} trials reached (${used} used): raise it to go on` : "",

@@ -67,6 +67,8 @@ function collect() {
     seed: numberField("#f-seed", "seed", errors, { integer: true }),
     notes: $("#f-notes").value,
   };
+  // imported observations always count: they are what the operator chose to import
+  if ($("#f-objective_sources").value) body.objective_sources = [$("#f-objective_sources").value, "imported"];
   if (!body.name) errors.name = "give the experiment a name";
   // the API's rules, in the form's own words and units
   if (body.method.startsWith("bo-") && Number.isInteger(body.n_initial) && Number.isInteger(body.budget) && body.n_initial > body.budget) {
