@@ -12,7 +12,7 @@ from typing import Literal
 from pydantic import BaseModel, Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from app.policy import HardwareCeilings
+from app.policy import SIM_MAX_PRESSURE_PA, HardwareCeilings
 
 
 class PreviewSettings(BaseModel):
@@ -33,7 +33,7 @@ class RobotSettings(BaseModel):
     source_pa: float = Field(205_000.0, gt=0, le=10e6, description="supply pressure, Pa")
     max_step_pa: float = Field(30_000.0, gt=0, le=10e6, description="largest offset, Pa")
     chamber_max_pa: float = Field(
-        40.0 * 6894.757293168, gt=0, le=10e6, description="chambers' rating, Pa (40 psi)"
+        SIM_MAX_PRESSURE_PA, gt=0, le=10e6, description="chambers' rating, Pa (40 psi)"
     )
 
     def ceilings(self) -> HardwareCeilings:
