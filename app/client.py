@@ -13,6 +13,7 @@ raises ``HandfulAPIError`` (status, detail, code) for any 4xx/5xx reply.
 from __future__ import annotations
 
 import base64
+import random
 import time
 import uuid
 from collections.abc import Sequence
@@ -45,6 +46,9 @@ class HandfulClient:
         timeout: seconds per request.
         retries: how many times to retry a GET, heartbeat, result or keyed measurement post
             after a connection error (server restarting), with backoff.
+        busy_deadline_s: a 503 ``database_busy`` (nothing was stored) is retried, any
+            method, waiting what its ``Retry-After`` says (at least an exponential backoff
+            with jitter), until this many seconds have passed since the first try; 0: never.
     """
 
     def __init__(
@@ -54,10 +58,12 @@ class HandfulClient:
         *,
         timeout: float = 60.0,
         retries: int = 0,
+        busy_deadline_s: float = 60.0,
         transport: httpx.BaseTransport | None = None,
     ) -> None:
         self.base_url = base_url.rstrip("/")
         self.retries = retries
+        self.busy_deadline_s = busy_deadline_s
         self._http = httpx.Client(base_url=self.base_url, timeout=timeout, transport=transport)
         self.token = token
 
@@ -95,21 +101,17 @@ class HandfulClient:
         raw: bool = False,
     ) -> Any:
         """Send one request; decode JSON (or return the Response when ``raw``)."""
-        retry = (method == "GET") if idempotent is None else idempotent
-        attempts = 1 + (self.retries if retry else 0)
-        for i in range(attempts):
-            try:
-                r = self._http.request(method, path, json=json, params=params, headers=headers)
+        deadline = time.monotonic() + self.busy_deadline_s
+        busy = 0
+        while True:
+            r = self._send(
+                method, path, json=json, params=params, headers=headers, idempotent=idempotent
+            )
+            wait = self._busy_wait(r, busy, deadline)
+            if wait is None:
                 break
-            except (
-                httpx.ConnectError,
-                httpx.ReadError,
-                httpx.RemoteProtocolError,
-                httpx.ConnectTimeout,
-            ):
-                if i == attempts - 1:
-                    raise
-                time.sleep(min(0.25 * 2**i, 5.0))
+            busy += 1
+            time.sleep(wait)
         if r.status_code >= 400:
             try:
                 body = r.json()
@@ -125,10 +127,65 @@ class HandfulClient:
             return r.json()
         return r.text
 
+    def _send(
+        self,
+        method: str,
+        path: str,
+        *,
+        json: Any,
+        params: dict[str, Any] | None,
+        headers: dict[str, str] | None,
+        idempotent: bool | None,
+    ) -> httpx.Response:
+        """One request, re-sent after connection errors when it is safe (``retries``)."""
+        retry = (method == "GET") if idempotent is None else idempotent
+        attempts = 1 + (self.retries if retry else 0)
+        for i in range(attempts):
+            try:
+                return self._http.request(method, path, json=json, params=params, headers=headers)
+            except (
+                httpx.ConnectError,
+                httpx.ReadError,
+                httpx.RemoteProtocolError,
+                httpx.ConnectTimeout,
+            ):
+                if i == attempts - 1:
+                    raise
+                time.sleep(min(0.25 * 2**i, 5.0))
+        raise AssertionError("unreachable")
+
+    @staticmethod
+    def _busy_wait(r: httpx.Response, n_before: int, deadline: float) -> float | None:
+        """Seconds to wait before re-sending a request the database was too busy for (503
+        ``database_busy``: nothing was stored), or None: do not retry."""
+        if r.status_code != 503:
+            return None
+        try:
+            if r.json().get("code") != "database_busy":
+                return None
+        except (ValueError, AttributeError):
+            return None
+        try:
+            after = float(r.headers.get("Retry-After", "1"))
+        except ValueError:
+            after = 1.0
+        backoff = min(0.1 * 2**n_before, 5.0) * (0.5 + random.random())
+        wait = max(after, backoff)
+        left = deadline - time.monotonic()
+        if left <= 0:
+            return None
+        return min(wait, left)
+
     # --- health & auth --------------------------------------------------------------------------
     def health(self) -> JSON:
         """``{status, db, version}``."""
         return self.request("GET", "/health")
+
+    def rotate_token(self) -> JSON:
+        """Swap this client's token for a new one (the old one is revoked at once)."""
+        out = self.request("POST", "/api/auth/rotate")
+        self.token = out["token"]
+        return out
 
     def login(self, username: str, password: str) -> JSON:
         """Log in; the client then uses the returned token."""

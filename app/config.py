@@ -70,6 +70,31 @@ class Settings(BaseSettings):
     max_body_bytes: int = Field(16 * 1024 * 1024, ge=1024, description="largest request body")
     preview: PreviewSettings = Field(default_factory=PreviewSettings)
     robot: RobotSettings = Field(default_factory=RobotSettings)
+    torch_threads: int = Field(
+        1,
+        ge=1,
+        le=1024,
+        description="torch's intra-op threads for GP fits and acquisition searches (these GPs "
+        "are small: one thread is as fast as two on an idle machine, several times faster on "
+        "a busy one; parallelism comes from running optimisers side by side)",
+    )
+    db_busy_timeout_s: float = Field(
+        5.0,
+        gt=0,
+        le=300,
+        description="a write waits this long for the database, then 503 database_busy",
+    )
+    token_ttl_s: float = Field(
+        12 * 3600.0, gt=0, description="a login token's lifetime, s (rotate to extend)"
+    )
+    login_max_failures: int = Field(
+        5, ge=1, description="failed logins per user (4x per address) in the window"
+    )
+    login_window_s: float = Field(900.0, gt=0, description="the failed-login window, s")
+    suggest_timeout_s: float = Field(
+        120.0, gt=0, le=3600, description="a suggestion's (or GP view's) time budget; then 503"
+    )
+    compute_workers: int = Field(2, ge=1, le=64, description="processes running optimisers")
 
     @property
     def db_url(self) -> str:

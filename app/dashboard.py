@@ -11,11 +11,12 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import logging
 import threading
 from collections import OrderedDict
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import httpx
 import numpy as np
@@ -31,11 +32,14 @@ from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
 from pydantic import BaseModel, Field
 
+from app.service.schemas import ExperimentRead, PreviewJobRead, TrialRead
 from app.viz import Replay, VizServer
 
 log = logging.getLogger(__name__)
 
 WEB_DIR = Path(__file__).resolve().parents[1] / "web"
+#: the proxied viser client (``/viz/client/``) is framed by our own pages, and only by them
+VIZ_CLIENT_CSP = "frame-ancestors 'self'; object-src 'none'; base-uri 'self'"
 
 
 def plotly_js_path() -> Path:
@@ -65,6 +69,14 @@ class ApiRefused(Exception):
         super().__init__(str(detail))
         self.status_code = status_code
         self.detail = detail
+
+
+M = TypeVar("M", bound=BaseModel)
+
+
+async def _get(client: httpx.AsyncClient, path: str, auth: str | None, schema: type[M]) -> M:
+    """GET ``path`` through the API and parse the reply with its published schema."""
+    return schema.model_validate(await _get_json(client, path, auth))
 
 
 async def _get_json(client: httpx.AsyncClient, path: str, auth: str | None) -> Any:
@@ -102,24 +114,31 @@ _ROLLOUT_SLOTS = threading.BoundedSemaphore(2)
 
 
 def _simulate_qpos(
-    task: str, preset: str, schedule: Any, release_step: int | None
+    task: str, preset: str, schedule: Any, release_step: int | None, command_hold: str = "zero"
 ) -> tuple[np.ndarray, np.ndarray]:
     """A sim rollout of the schedule with qpos recorded: (time_s (T,), qpos (T, nq)).
 
-    The simulator is deterministic, so results are kept (newest 16) by task, preset and the
-    schedule's hash.
+    The simulator is deterministic, so results are kept (newest 16) by task, preset, command
+    hold and the schedule's hash.
     """
     from app.policy import schedule_hash
     from app.sim import rollout
 
     sched = np.asarray(schedule, dtype=np.float64)
-    key = f"{task}/{preset}/{schedule_hash(sched, release_step)}"
+    key = f"{task}/{preset}/{command_hold}/{schedule_hash(sched, release_step)}"
     with _ROLLOUT_LOCK:
         if key in _ROLLOUTS:
             _ROLLOUTS.move_to_end(key)
             return _ROLLOUTS[key]
     with _ROLLOUT_SLOTS:
-        result = rollout(task, sched, release_step=release_step, preset=preset, record_qpos=True)
+        result = rollout(
+            task,
+            sched,
+            release_step=release_step,
+            preset=preset,
+            record_qpos=True,
+            command_hold=command_hold,
+        )
     out = (np.asarray(result.trajectory.time_s), np.asarray(result.trajectory.qpos))
     with _ROLLOUT_LOCK:
         _ROLLOUTS[key] = out
@@ -130,13 +149,13 @@ def _simulate_qpos(
 
 async def _trial_replay(
     client: httpx.AsyncClient, auth: str | None, trial_id: int, role: str
-) -> tuple[Replay, dict[str, Any]]:
+) -> tuple[Replay, TrialRead]:
     """A trial's recorded qpos if it has some, else a sim rollout of what it ran (or plans)."""
-    trial = await _get_json(client, f"/api/trials/{trial_id}", auth)
-    experiment = await _get_json(client, f"/api/experiments/{trial['experiment_id']}", auth)
-    task, preset = experiment["task"], experiment.get("sim_preset") or "reference"
+    trial = await _get(client, f"/api/trials/{trial_id}", auth, TrialRead)
+    experiment = await _get(client, f"/api/experiments/{trial.experiment_id}", auth, ExperimentRead)
+    task, preset = experiment.task, experiment.sim_preset
     recorded = None
-    if trial.get("has_trajectory"):
+    if trial.has_trajectory:
         try:
             recorded = _trajectory_qpos(
                 await _get_json(client, f"/api/trials/{trial_id}/trajectory?format=json", auth)
@@ -147,14 +166,39 @@ async def _trial_replay(
         time_s, qpos = recorded
         how = "recorded"
     else:
-        executed = trial.get("executed_pressure_schedule_pa")
-        schedule = executed if executed is not None else trial["pressure_schedule_pa"]
-        release = trial.get("executed_release_step") if executed is not None else None
-        release = release if release is not None else trial.get("release_step")
-        time_s, qpos = await asyncio.to_thread(_simulate_qpos, task, preset, schedule, release)
-        how = "simulated from its executed schedule" if executed else "simulated from its plan"
-    label = f"trial {trial.get('index', trial_id)} ({role}, {how})"
+        executed = trial.executed_pressure_schedule_pa
+        if executed is not None:
+            schedule, release = executed, trial.executed_release_step
+            how = "simulated from its executed schedule"
+        else:
+            schedule, release = trial.pressure_schedule_pa, trial.release_step
+            how = "simulated from its plan"
+        time_s, qpos = await asyncio.to_thread(
+            _simulate_qpos, task, preset, schedule, release, experiment.command_hold
+        )
+    label = f"trial {trial.index} ({role}, {how})"
     return Replay(task, time_s, qpos, label, preset), trial
+
+
+def api_schema_module(openapi: dict[str, Any]) -> str:
+    """``/api-schema.js``: the OpenAPI document's schemas, the status sets and robot facts."""
+    from app.policy import RELEASE_TASKS, SIM_MAX_PRESSURE_PA, TASKS
+    from app.service.lifecycle import STATUSES
+
+    preview = PreviewJobRead.model_json_schema()["properties"]["status"]["enum"]
+    consts = {
+        "SCHEMAS": openapi["components"]["schemas"],
+        "TRIAL_STATUSES": list(STATUSES),
+        "PREVIEW_STATUSES": preview,
+        "TASKS": list(TASKS),
+        "RELEASE_TASKS": sorted(RELEASE_TASKS),
+        "SIM_MAX_PRESSURE_PA": SIM_MAX_PRESSURE_PA,
+    }
+    lines = [
+        "// Generated by app.dashboard.api_schema_module from the running server: do not edit."
+    ]
+    lines += [f"export const {k} = {json.dumps(v, sort_keys=True)};" for k, v in consts.items()]
+    return "\n".join(lines) + "\n"
 
 
 def _view_error(exc: Exception) -> JSONResponse:
@@ -191,6 +235,16 @@ def mount_dashboard(app: FastAPI, settings: Any) -> None:
             media_type="text/javascript",
             headers={"Cache-Control": "public, max-age=86400"},
         )
+
+    schema_js: list[str] = []  # built on first request (the routes are all added by then)
+
+    @router.get("/api-schema.js")
+    def api_schema() -> Response:
+        """The API's published schemas and the robot's facts as an ES module, so the pages use
+        the server's field names, statuses and constants instead of guessing them."""
+        if not schema_js:
+            schema_js.append(api_schema_module(app.openapi()))
+        return Response(schema_js[0], media_type="text/javascript")
 
     def page(request: Request, template: str, **context: Any) -> HTMLResponse:
         return templates.TemplateResponse(
@@ -259,36 +313,34 @@ def mount_dashboard(app: FastAPI, settings: Any) -> None:
             "proxy_websocket_path": f"/viz/ws{viz.websocket_path(key)}",
             "label": primary.label,
             "overlay_label": overlay.label if overlay else None,
-            "trial_id": trial.get("id", body.trial_id),
+            "trial_id": trial.id,
         }
 
     async def _preview_replay(
         c: httpx.AsyncClient, auth: str | None, body: ViewRequest
-    ) -> tuple[Replay, dict[str, Any]]:
+    ) -> tuple[Replay, TrialRead]:
         """The preview job's rollout (exactly the trial's current schedule)."""
-        job = await _get_json(c, f"/api/previews/{body.preview_job_id}", auth)
-        if job.get("status") not in ("done", "completed", "succeeded", "finished"):
-            raise ValueError(f"preview {body.preview_job_id} is {job.get('status')}, not done")
-        trial = await _get_json(c, f"/api/trials/{body.trial_id}", auth)
-        result = job.get("result") or job
-        job_trial = result.get("trial_id", job.get("trial_id"))
-        if job_trial is not None and int(job_trial) != int(body.trial_id):
-            raise ValueError(f"preview {body.preview_job_id} is of trial {job_trial}")
-        job_hash = result.get("schedule_hash", job.get("schedule_hash"))
-        if job_hash is not None and job_hash != trial.get("schedule_hash"):
+        job = await _get(c, f"/api/previews/{body.preview_job_id}", auth, PreviewJobRead)
+        if job.status != "done":
+            raise ValueError(f"preview {body.preview_job_id} is {job.status}, not done")
+        trial = await _get(c, f"/api/trials/{body.trial_id}", auth, TrialRead)
+        if job.trial_id != trial.id:
+            raise ValueError(f"preview {body.preview_job_id} is of trial {job.trial_id}")
+        if job.schedule_hash != trial.schedule_hash:
             raise ValueError("the trial's schedule changed since this preview; preview again")
-        experiment = await _get_json(c, f"/api/experiments/{trial['experiment_id']}", auth)
-        task, preset = experiment["task"], experiment.get("sim_preset") or "reference"
-        recorded = _trajectory_qpos(result.get("trajectory"))
+        experiment = await _get(c, f"/api/experiments/{trial.experiment_id}", auth, ExperimentRead)
+        task, preset = experiment.task, experiment.sim_preset
+        recorded = _trajectory_qpos(job.trajectory)
         if recorded is None:
             recorded = await asyncio.to_thread(
                 _simulate_qpos,
                 task,
                 preset,
-                trial["pressure_schedule_pa"],
-                trial.get("release_step"),
+                trial.pressure_schedule_pa,
+                trial.release_step,
+                experiment.command_hold,
             )
-        label = f"trial {trial.get('index', body.trial_id)} (candidate, sim preview)"
+        label = f"trial {trial.index} (candidate, sim preview)"
         return Replay(task, recorded[0], recorded[1], label, preset), trial
 
     def upstream_host() -> str:
@@ -305,6 +357,10 @@ def mount_dashboard(app: FastAPI, settings: Any) -> None:
             r = await c.get(url, params=dict(request.query_params))
         wanted = ("content-type", "cache-control")
         keep = {k: v for k, v in r.headers.items() if k.lower() in wanted}
+        # the one thing our own pages frame: allowed by them alone (every other reply keeps
+        # app.api.limits.SECURITY_HEADERS' frame-ancestors 'none' / DENY)
+        keep["content-security-policy"] = VIZ_CLIENT_CSP
+        keep["x-frame-options"] = "SAMEORIGIN"
         return Response(r.content, status_code=r.status_code, headers=keep)
 
     @router.websocket("/viz/ws/view/{key}")

@@ -14,16 +14,21 @@ import hashlib
 import json
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal, get_args
 
 import numpy as np
 
 N_CHAMBERS = 12
 N_PAIRED = 6
-PSI_PA = 6894.757293168
-SIM_MAX_PRESSURE_PA = 40.0 * PSI_PA  # 275.8 kPa: the simulator's command range is [0, 40 psi]
+#: 275,800 Pa: every chamber's command range is [0, 275.8 kPa] (ROBOT.md: 40 psi, as the
+#: published simulator writes it; its reference runs in tests/sim/data command exactly 275,800)
+SIM_MAX_PRESSURE_PA = 275_800.0
 HORIZON = 10
 EPISODE_S = 5.0
+#: the tasks (ROBOT.md); throwing alone has a release step
+TaskName = Literal["throw", "hammer", "tip_speed"]
+TASKS: tuple[str, ...] = get_args(TaskName)
+RELEASE_TASKS = frozenset({"throw"})
 
 CHAMBER_NAMES: tuple[str, ...] = tuple(
     f"j{j}.{axis}{sign}" for j in range(3) for axis in ("x", "y") for sign in ("+", "-")
@@ -53,6 +58,38 @@ def _rebuild_limit_error(
     message: str, chamber: int, step: int, value_pa: float
 ) -> PressureLimitError:
     return PressureLimitError(message, chamber=chamber, step=step, value_pa=value_pa)
+
+
+def policy_dim(horizon: int, with_release: bool) -> int:
+    """D, the length of θ: one per control step, plus one for the release step."""
+    return int(horizon) + int(with_release)
+
+
+def check_release_step(
+    release_step: Any, *, horizon: int, with_release: bool, owner: str = "this policy"
+) -> int | None:
+    """The release step as an int in 1..``horizon`` (1-based: the object is released at the end
+    of that control step), or None for a policy without one; ``owner`` names the policy in the
+    messages ("throw", "this experiment", ...).
+
+    Raises:
+        PolicyError: a missing, non-integer or out-of-range release step, or one given to a
+            policy without a release step.
+    """
+    if not with_release:
+        if release_step is not None:
+            raise PolicyError(
+                f"{owner} has no release step (release_step applies to "
+                f"{', '.join(sorted(RELEASE_TASKS))} only), got {release_step!r}"
+            )
+        return None
+    if release_step is None:
+        raise PolicyError(f"{owner} needs release_step in 1..{horizon}")
+    if isinstance(release_step, bool) or not isinstance(release_step, int | np.integer):
+        raise PolicyError(f"release_step must be an integer in 1..{horizon}, got {release_step!r}")
+    if not 1 <= int(release_step) <= horizon:
+        raise PolicyError(f"release_step must be in 1..{horizon}, got {release_step}")
+    return int(release_step)
 
 
 @dataclass(frozen=True)
@@ -276,7 +313,7 @@ class Policy:
     @property
     def dim(self) -> int:
         """D: H, plus one for the release step when throwing."""
-        return int(self.horizon) + int(self.with_release)
+        return policy_dim(self.horizon, self.with_release)
 
     @property
     def step_s(self) -> float:
@@ -326,15 +363,21 @@ class Policy:
             raise PolicyError(f"θ[{i}] = {float(th[i])!r} is outside [0, 1]")
         return th
 
+    def _actions_of(self, theta: np.ndarray) -> np.ndarray:
+        """(..., D) θ → (..., H) action indices: floor(θ·M), with M clipped to M − 1."""
+        m = self.n_actions
+        return np.minimum(np.floor(theta[..., : self.horizon] * m).astype(np.int64), m - 1)
+
+    def _release_index_of(self, theta: np.ndarray) -> np.ndarray:
+        """(..., D) θ → (...) 0-based release index (release_step − 1): floor(θ_H·H) ≤ H − 1."""
+        h = self.horizon
+        return np.minimum(np.floor(theta[..., h] * h).astype(np.int64), h - 1)
+
     def actions_from_theta(self, theta: np.ndarray) -> tuple[np.ndarray, int | None]:
         """g: θ (D,) → (action indices (H,), release_step or None). Floors θ·M, clips M → M−1."""
         th = self._check_theta(theta)
-        m = self.n_actions
-        actions = np.minimum(np.floor(th[: self.horizon] * m).astype(np.int64), m - 1)
-        release = None
-        if self.with_release:
-            release = int(min(math.floor(th[self.horizon] * self.horizon), self.horizon - 1)) + 1
-        return actions, release
+        release = int(self._release_index_of(th)) + 1 if self.with_release else None
+        return self._actions_of(th), release
 
     def theta_from_actions(
         self, actions: np.ndarray, release_step: int | None = None
@@ -345,14 +388,44 @@ class Policy:
             raise PolicyError(f"need {self.horizon} action indices, got shape {a.shape}")
         if a.min() < 0 or a.max() >= self.n_actions:
             raise PolicyError(f"action indices must lie in [0, {self.n_actions}), got {a.tolist()}")
-        theta = (a.astype(np.float64) + 0.5) / self.n_actions
-        if self.with_release:
-            if release_step is None or not 1 <= int(release_step) <= self.horizon:
-                raise PolicyError(f"release_step must be in 1..{self.horizon}, got {release_step}")
-            theta = np.append(theta, (int(release_step) - 0.5) / self.horizon)
-        elif release_step is not None:
-            raise PolicyError("this policy has no release step")
-        return theta
+        release = check_release_step(
+            release_step, horizon=self.horizon, with_release=self.with_release
+        )
+        return self._bin_centres(a, None if release is None else np.int64(release - 1))
+
+    def _bin_centres(self, actions: np.ndarray, release_index: np.ndarray | None) -> np.ndarray:
+        """(..., H) action indices and (...) 0-based release indices → (..., D) θ at the
+        centres of their bins."""
+        theta = (actions.astype(np.float64) + 0.5) / self.n_actions
+        if release_index is None:
+            return theta
+        release = (np.asarray(release_index, dtype=np.float64) + 0.5) / self.horizon
+        return np.concatenate([theta, release[..., None]], axis=-1)
+
+    # --- θ ↔ grid coordinates (batched) ---------------------------------------------------------
+    def grid_sizes(self) -> tuple[int, ...]:
+        """The number of values of each grid coordinate (see ``grid_from_theta``)."""
+        return (self.levels,) * (self.horizon * N_PAIRED) + (self.horizon,) * self.with_release
+
+    def grid_from_theta(self, theta: np.ndarray) -> np.ndarray:
+        """(N, D) θ (unchecked) → (N, G) grid coordinates: the H × 6 level indices of the
+        decoded schedule (step by step, paired commands in order), then release_step − 1 when
+        throwing. Equal rows ⇔ the same schedule and release step."""
+        th = np.atleast_2d(np.asarray(theta, dtype=np.float64))
+        levels = self.levels_from_actions(self._actions_of(th))
+        levels = levels.reshape(th.shape[0], self.horizon * N_PAIRED)
+        if not self.with_release:
+            return levels
+        return np.concatenate([levels, self._release_index_of(th)[:, None]], axis=1)
+
+    def theta_from_grid(self, grid: np.ndarray) -> np.ndarray:
+        """(N, G) grid coordinates → (N, D) θ at the centres of their bins (inverse of
+        ``grid_from_theta``)."""
+        g = np.atleast_2d(np.asarray(grid, dtype=np.int64))
+        n_levels = self.horizon * N_PAIRED
+        levels = g[:, :n_levels].reshape(g.shape[0], self.horizon, N_PAIRED)
+        actions = np.ravel_multi_index(tuple(np.moveaxis(levels, -1, 0)), (self.levels,) * N_PAIRED)
+        return self._bin_centres(actions, g[:, n_levels] if self.with_release else None)
 
     # --- actions ↔ schedule ---------------------------------------------------------------------
     def levels_from_actions(self, actions: np.ndarray) -> np.ndarray:
@@ -388,26 +461,70 @@ class Policy:
         return schedule
 
     def encode(
-        self, pressure_schedule_pa: np.ndarray, release_step: int | None = None
+        self,
+        pressure_schedule_pa: np.ndarray,
+        release_step: int | None = None,
+        *,
+        snap: bool = False,
     ) -> np.ndarray:
-        """Schedule (H, 12) on this policy's grid → θ (D,). Raises if it is off the grid."""
-        schedule = self.check(pressure_schedule_pa)
-        table = self.level_pressures_pa()  # (12, P)
-        tol = 1e-6 * max(1.0, float(np.abs(table).max()))
-        levels = np.empty((self.horizon, N_PAIRED), dtype=np.int64)
-        for u in range(N_PAIRED):
-            for t in range(self.horizon):
-                pair = schedule[t, 2 * u : 2 * u + 2]
-                err = np.abs(table[2 * u : 2 * u + 2, :] - pair[:, None]).max(axis=0)
-                best = int(np.argmin(err))
-                if err[best] > tol:
-                    raise PolicyError(
-                        f"step {t + 1}, pair {PAIRED_NAMES[u]}: pressures {pair.tolist()} Pa "
-                        f"are not one of the policy's {self.levels} paired levels"
-                    )
-                levels[t, u] = best
+        """Schedule (H, 12) → θ (D,) at the centre of its actions' bins (decode ∘ encode is the
+        identity on the grid).
+
+        Exact (default): the schedule must lie within this policy's bounds and on its level
+        grid, else PolicyError. ``snap=True`` (a schedule a robot executed, possibly off the
+        grid or beyond the bounds): each pair goes to its nearest level (least mean absolute
+        error over its two chambers); only the shape and finiteness are checked.
+        """
+        if snap:
+            try:
+                schedule = np.asarray(pressure_schedule_pa, dtype=np.float64)
+            except (TypeError, ValueError):
+                schedule = np.full((0, 0), np.nan)  # ragged or not numeric: refused below
+            if schedule.shape != (self.horizon, N_CHAMBERS) or not np.all(np.isfinite(schedule)):
+                raise PolicyError(
+                    f"pressure schedule must be {self.horizon}×{N_CHAMBERS} finite numbers (Pa), "
+                    f"got shape {schedule.shape}"
+                )
+        else:
+            schedule = self.check(pressure_schedule_pa)
+        table = self.level_pressures_pa().reshape(N_PAIRED, 2, self.levels)  # (6, 2, P)
+        pairs = schedule.reshape(self.horizon, N_PAIRED, 2)
+        err = np.abs(table[None] - pairs[..., None])  # (H, 6, 2, P)
+        if snap:
+            levels = np.argmin(err.mean(axis=2), axis=-1)
+        else:
+            worst = err.max(axis=2)  # (H, 6, P)
+            levels = np.argmin(worst, axis=-1)
+            tol = 1e-6 * max(1.0, float(np.abs(table).max()))
+            off = np.take_along_axis(worst, levels[..., None], axis=-1)[..., 0] > tol
+            if off.any():
+                u, t = (int(i) for i in np.argwhere(off.T)[0])
+                raise PolicyError(
+                    f"step {t + 1}, pair {PAIRED_NAMES[u]}: pressures "
+                    f"{schedule[t, 2 * u : 2 * u + 2].tolist()} Pa "
+                    f"are not one of the policy's {self.levels} paired levels"
+                )
         actions = np.ravel_multi_index(tuple(levels.T), (self.levels,) * N_PAIRED)
         return self.theta_from_actions(np.asarray(actions), release_step)
+
+    def executed_theta(
+        self,
+        planned_theta: np.ndarray,
+        executed_schedule_pa: np.ndarray,
+        executed_release_step: int | None = None,
+    ) -> np.ndarray:
+        """The θ an optimiser observes for a trial: the one rule for the executed θ.
+
+        The planned θ when what ran snaps (``encode(..., snap=True)``) to the planned
+        actions and release step, i.e. the trial ran its plan (a simulator exactly, a robot
+        within half a level); otherwise the centre of the bins of what ran. So the service's
+        runs, workers' results, imports and the sweep all give the optimiser its own θ back
+        for a trial that ran as planned.
+        """
+        planned = np.asarray(planned_theta, dtype=np.float64)
+        ran = self.encode(executed_schedule_pa, executed_release_step, snap=True)
+        same = np.array_equal(self.grid_from_theta(ran), self.grid_from_theta(planned))
+        return planned.copy() if same else ran
 
 
 def schedule_hash(pressure_schedule_pa: np.ndarray, release_step: int | None = None) -> str:

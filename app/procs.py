@@ -53,3 +53,15 @@ def process_pool(
         initializer=_pool_init,
         initargs=(os.getpid(), PARENT_POLL_S, initializer, initargs),
     )
+
+
+def set_torch_threads(n: int) -> None:
+    """Set torch's intra-op thread count for this whole process (``Settings.torch_threads``).
+
+    Called once by the entry points that run optimisers (the server's ``create_app``, each
+    sweep run, the benchmarks); the libraries (``app.optim``) never set it themselves.
+    """
+    import torch
+
+    if torch.get_num_threads() != n:
+        torch.set_num_threads(n)

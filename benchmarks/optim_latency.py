@@ -82,10 +82,11 @@ def main() -> None:
     ap.add_argument("--json", default=None)
     a = ap.parse_args()
     results = []
-    # Raw BoTorch gets the same intra-op threads the interface uses for its fits and searches.
-    from app.optim.bo import TORCH_THREADS
+    # Both get the intra-op threads the server gives its GP work (HANDFUL_TORCH_THREADS).
+    from app.config import Settings
+    from app.procs import set_torch_threads
 
-    torch.set_num_threads(TORCH_THREADS)
+    set_torch_threads(Settings().torch_threads)
     print(f"torch threads: {torch.get_num_threads()}")
     print("| N | interface (s) | raw BoTorch (s) | overhead | same suggestion |")
     print("|---:|---:|---:|---:|---|")

@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from app.optim import sweep
+from app import bench
 
 # label → (method, settings)
 VARIANTS: dict[str, tuple[str, dict]] = {
@@ -43,16 +43,16 @@ def main() -> None:
                 for label in filter(None, a.variants.split(",")):
                     method, settings = VARIANTS[label]
                     specs.append(
-                        sweep.RunSpec(
+                        bench.RunSpec(
                             method, task, p, seed, a.budget, a.preset, dict(settings), label
                         )
                     )
                 for m in filter(None, a.peers.split(",")):
-                    specs.append(sweep.RunSpec(m, task, p, seed, a.budget, a.preset))
+                    specs.append(bench.RunSpec(m, task, p, seed, a.budget, a.preset))
     # Slow (BO) runs first so the pool's tail is short.
     specs.sort(key=lambda s: s.method.startswith("bo") or s.method == "optuna-gp", reverse=True)
-    runs = sweep.run_sweep(specs, a.out, workers=a.workers, progress=False)
-    sweep.write_outputs(a.out, specs, runs, [a.budget // 4, a.budget // 2, a.budget])
+    runs = bench.run_sweep(specs, a.out, workers=a.workers, progress=False)
+    bench.write_outputs(a.out, specs, runs, [a.budget // 4, a.budget // 2, a.budget])
     print((a.out / "summary.md").read_text())
 
 

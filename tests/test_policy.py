@@ -196,3 +196,100 @@ def test_schedule_hash_of_a_non_finite_schedule_is_defined_and_distinct() -> Non
         hashes = {schedule_hash(s, None) for s in (schedule, nan, inf)}
     assert len(hashes) == 3
     assert schedule_hash(nan.copy(), None) == schedule_hash(nan, None)
+
+
+policies = st.sampled_from(
+    [
+        Policy(levels=2),
+        Policy(levels=5, with_release=True),
+        Policy(levels=7, horizon=4),
+        Policy(levels=3, limits=PressureLimits(nominal_pa=100_000.0)),
+        Policy(
+            levels=4,
+            horizon=6,
+            with_release=True,
+            limits=PressureLimits(nominal_pa=120_000.0, max_step_pa=20_000.0),
+        ),
+    ]
+)
+thetas = st.data()
+
+
+def _theta(policy: Policy, data: st.DataObject) -> np.ndarray:
+    return np.array(data.draw(st.lists(st.floats(0, 1), min_size=policy.dim, max_size=policy.dim)))
+
+
+@settings(max_examples=60, deadline=None)
+@given(policies, thetas)
+def test_grid_coordinates_are_the_decoded_levels_and_release_step(policy, data):
+    theta = np.stack([_theta(policy, data) for _ in range(3)])
+    grid = policy.grid_from_theta(theta)
+    assert grid.shape == (3, len(policy.grid_sizes()))
+    assert (grid < np.asarray(policy.grid_sizes())).all() and (grid >= 0).all()
+    back = policy.theta_from_grid(grid)
+    for th, row, b in zip(theta, grid, back, strict=True):
+        d = policy.decode(th)
+        release = [d.release_step - 1] if policy.with_release else []
+        assert row.tolist() == [*d.level_indices.ravel().tolist(), *release]
+        # the bin centre of the same schedule
+        np.testing.assert_array_equal(
+            b, policy.theta_from_actions(d.action_indices, d.release_step)
+        )
+
+
+@settings(max_examples=60, deadline=None)
+@given(policies, thetas)
+def test_a_run_of_the_plan_gives_the_planned_theta_back(policy, data):
+    theta = _theta(policy, data)
+    planned = policy.decode(theta)
+    executed = policy.executed_theta(theta, planned.pressure_schedule_pa, planned.release_step)
+    np.testing.assert_array_equal(executed, theta)
+
+
+@settings(max_examples=60, deadline=None)
+@given(policies, thetas)
+def test_an_executed_schedule_snaps_to_the_nearest_levels(policy, data):
+    """Errors under half a level's spacing: the plan ran (θ comes back); a different level in
+    step 1: the centre of the bins of what ran."""
+    theta = _theta(policy, data)
+    planned = policy.decode(theta)
+    spacing = float(np.abs(np.diff(policy.level_pressures_pa()[0])).min())
+    seed = data.draw(st.integers(0, 2**31 - 1))
+    noise = np.random.default_rng(seed).uniform(-0.45, 0.45, planned.pressure_schedule_pa.shape)
+    noisy = planned.pressure_schedule_pa + noise * spacing
+    snapped = policy.encode(noisy, planned.release_step, snap=True)
+    np.testing.assert_array_equal(policy.decode(snapped).action_indices, planned.action_indices)
+    np.testing.assert_array_equal(policy.executed_theta(theta, noisy, planned.release_step), theta)
+    levels = planned.level_indices.copy()
+    levels[0, 0] = (levels[0, 0] + 1) % policy.levels
+    other = policy.schedule_from_levels(levels)
+    executed = policy.executed_theta(theta, other, planned.release_step)
+    np.testing.assert_array_equal(policy.decode(executed).level_indices, levels)
+    np.testing.assert_array_equal(
+        executed,
+        policy.theta_from_actions(policy.decode(executed).action_indices, planned.release_step),
+    )
+
+
+def test_a_different_release_step_is_a_different_execution() -> None:
+    policy = Policy(levels=3, with_release=True)
+    theta = np.full(11, 0.42)
+    planned = policy.decode(theta)
+    other = policy.executed_theta(
+        theta, planned.pressure_schedule_pa, planned.release_step % 10 + 1
+    )
+    assert policy.decode(other).release_step == planned.release_step % 10 + 1
+    assert other[10] != theta[10]
+
+
+def test_snapping_encode_takes_schedules_beyond_the_bounds_but_not_malformed_ones() -> None:
+    policy = Policy(levels=2, limits=PressureLimits(nominal_pa=100_000.0))
+    beyond = np.tile([150_000.0, 50_000.0], (10, 6))  # beyond nominal ± max step (30 kPa)
+    with pytest.raises(PressureLimitError):
+        policy.encode(beyond)
+    theta = policy.encode(beyond, snap=True)
+    assert policy.decode(theta).pressure_schedule_pa[0, :2].tolist() == [130_000.0, 70_000.0]
+    with pytest.raises(PolicyError, match=r"10×12 finite numbers \(Pa\), got shape \(9, 12\)"):
+        policy.encode(beyond[:9], snap=True)
+    with pytest.raises(PolicyError, match="finite"):
+        policy.encode(np.full((10, 12), np.nan), snap=True)

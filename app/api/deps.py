@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import time
 from collections.abc import AsyncIterator, Awaitable, Callable
-from typing import Annotated, TypeVar
+from typing import Annotated
 
-from fastapi import Depends, Request
+from fastapi import Depends, Path, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
 from pydantic import BaseModel
@@ -16,20 +15,14 @@ from app.config import Settings
 from app.db.session import Database
 from app.service import auth
 from app.service.auth import OPERATOR, VIEWER, WORKER, Actor
+from app.service.compute import ComputeRunner
 from app.service.errors import Forbidden, Unauthorized
 from app.service.runs import PreviewRunner
 
-T = TypeVar("T")
-
-# The dependencies are ``async def`` on purpose: FastAPI runs a sync dependency in a thread
-# of its pool, and each such hop costs more than the work (a dict lookup, an indexed SELECT).
-# Sync routes still run in the pool, so their queries never block the event loop; on the
-# loop run only the token lookup and ``run_write``'s short writes while the writer is free.
-#
-# Writes open their session in the route body (``with db.write() as session:``), not
-# through a yield dependency: a dependency's exit runs on the event loop, and a write
-# transaction whose commit waits for the loop could hold SQLite's one write connection while
-# ``run_write`` on the loop waits for it.
+# No request waits for the database on the event loop: routes that touch it are sync (run in
+# the threadpool), and the token lookup behind ``current_actor`` runs there too (on a cache
+# miss). Write routes open their session in the route body (``with db.write() as session:``),
+# so every write transaction begins, commits and ends in the thread that did the work.
 
 
 async def get_settings(request: Request) -> Settings:
@@ -44,49 +37,33 @@ async def get_previews(request: Request) -> PreviewRunner:
     return request.app.state.previews
 
 
+async def get_compute(request: Request) -> ComputeRunner:
+    return request.app.state.compute
+
+
 async def read_session(db: Annotated[Database, Depends(get_db)]) -> AsyncIterator[Session]:
     """A read-only session (rolled back at the end)."""
     with db.read() as s:
         yield s
 
 
-def _write(db: Database, work: Callable[[Session], T]) -> T:
-    with db.write() as s:
-        return work(s)
-
-
-async def run_write(db: Database, work: Callable[[Session], T]) -> T:
-    """``work(session)`` in a write transaction (committed on success), for routes whose whole
-    job is one short write (a measurement post: ~1 ms of SQL and one commit, no file I/O).
-
-    When SQLite's write connection is free, it runs right here on the event loop: the hop to a
-    pool thread and back costs more than such a transaction (0.3-0.5 ms of a 2-3 ms post on
-    the development VM). When another writer holds it, or on PostgreSQL, it runs in the
-    threadpool, so the loop never waits for someone else's transaction. (A writer that takes
-    the connection between the check and our first statement, or another program holding
-    SQLite's lock, such as ``handful user add``, can still make the loop wait for one short
-    transaction: write transactions here never run long work and always end in the thread
-    that opened them.)
-    """
-    if db.writer_idle():
-        return _write(db, work)
-    return await run_in_threadpool(_write, db, work)
-
+MAX_ID = 2**63 - 1  # the largest id a database row can have (SQLite, PostgreSQL BIGINT)
+ExperimentId = Annotated[int, Path(ge=1, le=MAX_ID, description="an experiment's id")]
+TrialId = Annotated[int, Path(ge=1, le=MAX_ID, description="a trial's id")]
+MeasurementId = Annotated[int, Path(ge=1, le=MAX_ID, description="a measurement's id")]
 
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 DbDep = Annotated[Database, Depends(get_db)]
 ReadSession = Annotated[Session, Depends(read_session)]
 PreviewsDep = Annotated[PreviewRunner, Depends(get_previews)]
+ComputeDep = Annotated[ComputeRunner, Depends(get_compute)]
 
 ANONYMOUS = Actor("anonymous", VIEWER)
 
 
-def _bearer(request: Request) -> str | None:
+def bearer_token(request: Request) -> str | None:
     header = request.headers.get("authorization")
-    if not header:
-        # EventSource (SSE) cannot send headers: the events stream may carry ?token=
-        if request.url.path.endswith("/events") and request.query_params.get("token"):
-            return request.query_params["token"]
+    if not header:  # tokens travel only in this header: never in a URL (access logs)
         return None
     scheme, _, token = header.partition(" ")
     if scheme.lower() != "bearer" or not token.strip():
@@ -94,38 +71,28 @@ def _bearer(request: Request) -> str | None:
     return token.strip()
 
 
-TOKEN_CACHE_S = 5.0  # a revoked token or disabled user is refused at most this much later
+def _lookup(db: Database, token: str) -> Actor:
+    with db.read() as s:
+        return auth.authenticate(s, token)
 
 
-def current_actor(request: Request) -> Actor | None:
+async def current_actor(request: Request) -> Actor | None:
     """The caller, or None when no token was sent (Unauthorized for a bad token).
 
-    Valid tokens are remembered for ``TOKEN_CACHE_S`` (by their SHA-256) to spare a database
-    round trip per request; unknown tokens are looked up every time.
+    Looked up on every request (one indexed SELECT, in the threadpool): a revoked or expired
+    token, or a disabled user, is refused from the next request on.
     """
-    token = _bearer(request)
+    token = bearer_token(request)
     if token is None:
         return None
-    cache: dict[str, tuple[Actor, float]] = request.app.state.token_cache
-    digest = auth.token_digest(token)
-    hit = cache.get(digest)
-    now = time.monotonic()
-    if hit is not None and hit[1] > now:
-        return hit[0]
-    db: Database = request.app.state.db
-    with db.read() as s:
-        actor = auth.authenticate(s, token)
-    if len(cache) > 10_000:
-        cache.clear()
-    cache[digest] = (actor, now + TOKEN_CACHE_S)
-    return actor
+    return await run_in_threadpool(_lookup, request.app.state.db, token)
 
 
 def require(*roles: str, what: str) -> Callable[..., Awaitable[Actor]]:
     """A dependency that lets only ``roles`` through: 401 without a token, 403 otherwise."""
 
     async def dependency(request: Request) -> Actor:
-        actor = current_actor(request)
+        actor = await current_actor(request)
         if actor is None:
             raise Unauthorized(f"a token is required to {what} (Authorization: Bearer <token>)")
         if actor.role not in roles:
@@ -137,7 +104,7 @@ def require(*roles: str, what: str) -> Callable[..., Awaitable[Actor]]:
 
 async def reader(request: Request) -> Actor:
     """Reads: operators and viewers (anyone when settings.public_read); never worker tokens."""
-    actor = current_actor(request)
+    actor = await current_actor(request)
     if actor is None:
         if request.app.state.settings.public_read:
             return ANONYMOUS
@@ -148,7 +115,7 @@ async def reader(request: Request) -> Actor:
 
 
 async def any_user(request: Request) -> Actor:
-    actor = current_actor(request)
+    actor = await current_actor(request)
     if actor is None:
         raise Unauthorized("a token is required (Authorization: Bearer <token>)")
     return actor

@@ -3,25 +3,27 @@
 from __future__ import annotations
 
 import asyncio
-import gc
 import inspect
 import logging
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager, suppress
 from importlib.metadata import PackageNotFoundError
 from importlib.metadata import version as _pkg_version
-from typing import Any
+from typing import Any, Literal
 
 from fastapi import FastAPI
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
+from pydantic import BaseModel
 from sqlalchemy import text
 
 from app.api import errors
-from app.api.limits import BodySizeLimit
+from app.api.limits import BodySizeLimit, SecurityHeaders
 from app.api.routes import auth, experiments, trials, workers
 from app.config import Settings
 from app.db.session import Database
+from app.service.auth import LoginLimiter
+from app.service.compute import ComputeRunner
 from app.service.leases import grant_restart_grace, sweep_expired
 from app.service.runs import PreviewRunner
 
@@ -47,7 +49,11 @@ async def _sweep_forever(app: FastAPI) -> None:
 
     def sweep() -> int:
         with db.write() as s:
-            return sweep_expired(s, max_attempts=settings.max_attempts)
+            return sweep_expired(
+                s,
+                max_attempts=settings.max_attempts,
+                orphan_after_s=max(60.0, settings.lease_seconds),
+            )
 
     while True:
         await asyncio.sleep(settings.lease_sweep_interval_s)
@@ -75,11 +81,7 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
         )
     for hook in list(app.state.startup_hooks):
         await _call(hook, app)
-    # Everything loaded so far (torch, BoTorch, MuJoCo, the app) lives as long as the server:
-    # move it out of the collector's generations, so that full collections during requests
-    # only walk what requests allocate.
-    gc.collect()
-    gc.freeze()
+    app.state.compute.warm()
     sweeper = asyncio.create_task(_sweep_forever(app))
     try:
         yield
@@ -93,13 +95,18 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
             except Exception:
                 log.exception("shutdown hook %r failed", hook)
         app.state.previews.shutdown()
+        app.state.compute.shutdown()
         app.state.db.dispose()
 
 
-def _warm_imports() -> None:
+def _warm_imports(settings: Settings) -> None:
     """Import the optimisers (torch, BoTorch) and the simulator (MuJoCo) now, at start-up,
-    so the first request that needs them does not wait many seconds for the imports."""
-    import app.optim
+    so the first request that needs them does not wait many seconds for the imports; set
+    torch's threads for the GP work (``settings.torch_threads``)."""
+    import app.optim.bo
+    from app.procs import set_torch_threads
+
+    set_torch_threads(settings.torch_threads)
 
     try:
         import app.sim  # noqa: F401
@@ -127,6 +134,12 @@ def _offline_docs(app: FastAPI) -> None:
         )
 
 
+class HealthRead(BaseModel):
+    status: Literal["ok", "error"]
+    db: str
+    version: str
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the app over an already-migrated database (``handful serve`` migrates first).
 
@@ -136,7 +149,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     """
     settings = settings or Settings()
     settings.artifacts_dir.mkdir(parents=True, exist_ok=True)
-    _warm_imports()
+    _warm_imports(settings)
     app = FastAPI(
         title="handful",
         version=VERSION,
@@ -147,17 +160,28 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     _offline_docs(app)
     app.state.settings = settings
-    app.state.db = Database(settings.db_url, sqlite_synchronous=settings.sqlite_synchronous)
+    app.state.db = Database(
+        settings.db_url,
+        sqlite_synchronous=settings.sqlite_synchronous,
+        busy_timeout_s=settings.db_busy_timeout_s,
+    )
     app.state.previews = PreviewRunner(settings.preview.workers, settings.preview.max_jobs)
-    app.state.token_cache = {}
+    app.state.compute = ComputeRunner(settings.compute_workers, settings.suggest_timeout_s)
+    app.state.login_limiter = LoginLimiter(settings.login_max_failures, settings.login_window_s)
     app.state.startup_hooks = []
     app.state.shutdown_hooks = []
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
+    app.add_middleware(SecurityHeaders)
     errors.install(app)
     for module in (auth, experiments, trials, workers):
-        app.include_router(module.router, prefix="/api")
+        app.include_router(module.router, prefix="/api", responses=errors.ERROR_RESPONSES)
 
-    @app.get("/health", tags=["health"])
+    @app.get(
+        "/health",
+        tags=["health"],
+        response_model=HealthRead,
+        responses={503: {"model": HealthRead, "description": "The database does not answer"}},
+    )
     def health() -> JSONResponse:
         """Liveness and database check: ``{status, db, version}``."""
         try:

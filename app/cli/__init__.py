@@ -15,7 +15,7 @@ app = typer.Typer(
 )
 
 # Sub-modules, each exposing ``register(app: typer.Typer) -> None``.
-_COMMAND_MODULES = ("sim", "bench", "serve", "users", "worker", "demo")
+_COMMAND_MODULES = ("sim", "bench", "serve", "users", "worker", "demo", "backup")
 
 
 @app.callback()

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import typer
 
-from app.cli import bench_optim, bench_sim
+from app.cli import bench_optim, bench_paper, bench_sim
 
 bench_app = typer.Typer(help="Benchmarks; numbers go to docs/BENCHMARKS.md.", no_args_is_help=True)
 bench_sim.register(bench_app)
 bench_optim.register(bench_app)
+bench_paper.register(bench_app)
 
 
 def register(app: typer.Typer) -> None:

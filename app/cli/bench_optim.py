@@ -27,6 +27,25 @@ def _fail(message: str) -> None:
     raise typer.Exit(2)
 
 
+def sim_settings(
+    preset: str | None, command_hold: str | None, objective: str | None
+) -> tuple[str, str, str]:
+    """(preset, command hold, scoring rule): each the paper-matching one unless given; one
+    clear line and exit 2 for an unknown one."""
+    from app import bench
+
+    preset = preset or bench.PAPER_PRESET
+    command_hold = command_hold or bench.PAPER_COMMAND_HOLD
+    objective = objective or bench.PAPER_OBJECTIVE_RULE
+    if command_hold not in bench.COMMAND_HOLDS:
+        _fail(
+            f"unknown --command-hold {command_hold!r}; choose from {', '.join(bench.COMMAND_HOLDS)}"
+        )
+    if objective not in bench.OBJECTIVE_RULES:
+        _fail(f"unknown --objective {objective!r}; choose from {', '.join(bench.OBJECTIVE_RULES)}")
+    return preset, command_hold, objective
+
+
 def optim(
     task: list[str] = typer.Option(
         None, "--task", help="throw, hammer, tip_speed (repeat or comma-separate; default throw)"
@@ -37,7 +56,17 @@ def optim(
     ),
     seeds: int = typer.Option(3, "--seeds", help="number of seeds (0 .. N-1)"),
     methods: list[str] = typer.Option(None, "--methods", help="methods (default: all)"),
-    preset: str = typer.Option("reference", "--preset", help="simulator preset: reference, fast"),
+    preset: str = typer.Option(
+        None, "--preset", help="simulator preset: reference, fast (default: the paper-matching)"
+    ),
+    command_hold: str = typer.Option(
+        None,
+        "--command-hold",
+        help="zero (each row held) or linear (ramped over each step); default: paper-matching",
+    ),
+    objective: str = typer.Option(
+        None, "--objective", help="scoring rule: paper or published; default: paper-matching"
+    ),
     out: Path = typer.Option(Path("bench_out/optim"), "--out", help="output (and cache) folder"),
     backend: str = typer.Option("local", "--backend", help="local (process pool) or ray"),
     address: str = typer.Option(None, "--address", help="Ray cluster address (with --backend ray)"),
@@ -51,8 +80,14 @@ def optim(
     ),
 ) -> None:
     """Run BO, CEM, random search, Optuna and CMA-ES on the simulated tasks; write
-    DIR/results.csv, DIR/summary.md and DIR/curves.png. Finished runs are cached and skipped."""
-    from app.optim import METHODS, SettingsError, sweep
+    DIR/results.csv, DIR/summary.md and DIR/curves.png. Finished runs are cached and skipped.
+
+    By default the simulator reproduces the paper's tables: preset, command hold and scoring
+    rule of ``app.bench.PAPER_PRESET`` / ``PAPER_COMMAND_HOLD`` / ``PAPER_OBJECTIVE_RULE``."""
+    from app import bench
+    from app.optim import METHODS, SettingsError
+
+    preset, command_hold, objective = sim_settings(preset, command_hold, objective)
 
     tasks = _split(task, ["throw"])
     ps = _ints("levels", _split(levels, ["2"]))
@@ -71,18 +106,25 @@ def optim(
     if preset not in PRESETS:
         _fail(f"unknown --preset {preset!r}; choose from {', '.join(PRESETS)}")
     try:
-        specs = sweep.make_specs(
-            methods=chosen, tasks=tasks, levels=ps, budgets=budgets, seeds=seeds, preset=preset
+        specs = bench.make_specs(
+            methods=chosen,
+            tasks=tasks,
+            levels=ps,
+            budgets=budgets,
+            seeds=seeds,
+            preset=preset,
+            command_hold=command_hold,
+            objective_rule=objective,
         )
     except SettingsError as exc:
         _fail(str(exc))
     if cached_only:
-        runs = {s: r for s in specs if (r := sweep.stored_rows(s, out))}
+        runs = {s: r for s in specs if (r := bench.stored_rows(s, out))}
         if not runs:
             _fail(f"no runs of this sweep stored in {out}")
         specs = [s for s in specs if s in runs]
     else:
-        runs = sweep.run_sweep(
+        runs = bench.run_sweep(
             specs,
             out,
             backend=backend,
@@ -90,7 +132,7 @@ def optim(
             workers=workers or None,
             progress=progress,
         )
-    sweep.write_outputs(out, specs, runs, budgets)
+    bench.write_outputs(out, specs, runs, budgets)
     typer.echo((out / "summary.md").read_text())
     typer.echo(f"wrote {out / 'results.csv'}, {out / 'summary.md'}, {out / 'curves.png'}")
 

@@ -25,7 +25,7 @@ import mujoco
 import numpy as np
 import typer
 
-from app.policy import Policy
+from app.policy import N_CHAMBERS, RELEASE_TASKS, Policy
 from app.sim import PRESETS, RolloutPool, rollout, rollout_batch
 from app.sim.model import effective_params
 from app.sim.presets import get_preset
@@ -74,7 +74,7 @@ class FidelityRow:
 def _schedules(n: int, seed: int, task: str) -> tuple[list[np.ndarray], list[int | None]]:
     """Half random θ through the P = 7 policy, half uniform random pressures."""
     rng = np.random.default_rng(seed)
-    policy = Policy(levels=7, with_release=task == "throw")
+    policy = Policy(levels=7, with_release=task in RELEASE_TASKS)
     scheds: list[np.ndarray] = []
     releases: list[int | None] = []
     for i in range(n):
@@ -83,8 +83,9 @@ def _schedules(n: int, seed: int, task: str) -> tuple[list[np.ndarray], list[int
             scheds.append(d.pressure_schedule_pa)
             releases.append(d.release_step)
         else:
-            scheds.append(rng.uniform(0.0, policy.p_max_pa, size=(10, 12)))
-            releases.append(int(rng.integers(1, 11)) if task == "throw" else None)
+            h = policy.horizon
+            scheds.append(rng.uniform(0.0, policy.p_max_pa, size=(h, N_CHAMBERS)))
+            releases.append(int(rng.integers(1, h + 1)) if policy.with_release else None)
     return scheds, releases
 
 
@@ -157,7 +158,7 @@ def bench_throughput(preset: str, episodes: int, seed: int) -> ThroughputRow:
 def bench_fidelity(task: str, n: int, seed: int, workers: int) -> list[FidelityRow]:
     """fast vs reference on the same schedules: tip-speed error and trace correlation."""
     scheds, releases = _schedules(n, seed, task)
-    rel = releases if task == "throw" else None
+    rel = releases if task in RELEASE_TASKS else None
     ref = rollout_batch(task, scheds, release_steps=rel, preset="reference", n_workers=workers)
     fast = rollout_batch(task, scheds, release_steps=rel, preset="fast", n_workers=workers)
     rows = []

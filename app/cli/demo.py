@@ -230,14 +230,14 @@ def demo(
         wait_healthy(url, procs.procs["server"], timeout_s=120.0, log_path=log_dir / "server.log")
         api = HandfulClient(url, token=operator_token, timeout=120.0)
         sim_id, hw_id = _ensure_experiments(api)
-        worker_args = ["--server", url, "--token", worker_token]
+        worker_args = ["--server", url]  # the token goes in the environment, not in ps
         procs.start(
             "sim-worker",
             [
                 *("worker", "sim", *worker_args, "--worker-id", "demo-sim"),
                 *(("--max-parallel", str(max_parallel)) if max_parallel else ()),
             ],
-            {},
+            {"HANDFUL_TOKEN": worker_token},
         )
         procs.start(
             "standin-worker",
@@ -246,7 +246,7 @@ def demo(
                 *("--driver", "standin", "-o", f"realtime={str(realtime).lower()}"),
                 *("-o", f"state_file={data_dir / 'standin_state.json'}", "-o", "seed=2"),
             ],
-            {},
+            {"HANDFUL_TOKEN": worker_token},
         )
         autopilot = threading.Thread(
             target=_autopilot,

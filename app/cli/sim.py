@@ -50,6 +50,8 @@ def _parse_theta(raw: str) -> np.ndarray:
 
 
 def _read_schedule(path: Path, task: str) -> tuple[np.ndarray, int | None]:
+    from app.policy import RELEASE_TASKS, PolicyError, check_release_step
+
     try:
         doc = json.loads(path.read_text())
     except OSError as exc:
@@ -70,14 +72,15 @@ def _read_schedule(path: Path, task: str) -> tuple[np.ndarray, int | None]:
     if not all(isinstance(v, int | float) and not isinstance(v, bool) for r in rows for v in r):
         raise BadInput(f"{path}: pressures_pa must contain only numbers (Pa)")
     schedule = np.asarray(rows, dtype=np.float64)
-    release = doc.get("release_step")
-    if task == "throw":
-        if release is None:
-            raise BadInput(f"{path}: throw needs release_step (1..{len(rows)})")
-        if isinstance(release, bool) or not isinstance(release, int):
-            raise BadInput(f"{path}: release_step must be an integer, got {release!r}")
-    elif release is not None:
-        raise BadInput(f"{path}: release_step applies to throw only, not {task}")
+    try:
+        release = check_release_step(
+            doc.get("release_step"),
+            horizon=len(rows),
+            with_release=task in RELEASE_TASKS,
+            owner=task,
+        )
+    except PolicyError as exc:
+        raise BadInput(f"{path}: {exc}") from None
     return schedule, release
 
 
@@ -85,6 +88,8 @@ def _summary_line(summary: dict[str, Any]) -> str:
     parts = [
         f"task={summary['task']}",
         f"preset={summary['preset']}",
+        f"command_hold={summary['command_hold']}",
+        f"objective_rule={summary['objective_rule']}",
         f"objective={summary['objective']:.4f}",
         f"max_tip_speed={summary['max_tip_speed']:.3f} m/s",
         f"wall={summary['wall_s']:.3f} s",
@@ -99,6 +104,12 @@ def _summary_line(summary: dict[str, Any]) -> str:
 def sim(
     task: Annotated[str, typer.Option(help="throw, hammer or tip_speed.")] = "",
     preset: Annotated[str, typer.Option(help="reference or fast.")] = "reference",
+    command_hold: Annotated[
+        str, typer.Option(help="zero (held each step) or linear (ramped from the last).")
+    ] = "zero",
+    objective: Annotated[
+        str, typer.Option(help="Scoring rule: paper (as printed) or published (its code).")
+    ] = "paper",
     theta: Annotated[
         str | None, typer.Option(help="θ as comma-separated numbers in [0,1].")
     ] = None,
@@ -121,7 +132,17 @@ def sim(
     """Simulate one 5 s episode and print its objective (and, with --json, the tip-speed trace)."""
     try:
         summary = _run(
-            task, preset, theta, levels, schedule, random, seed, save_trajectory, export_xml
+            task,
+            preset,
+            theta,
+            levels,
+            schedule,
+            random,
+            seed,
+            save_trajectory,
+            export_xml,
+            command_hold,
+            objective,
         )
     except BadInput as exc:
         raise _fail(str(exc)) from None
@@ -149,9 +170,19 @@ def _run(
     seed: str | None,
     save_trajectory: Path | None,
     export_xml_path: Path | None,
+    command_hold: str = "zero",
+    objective: str = "paper",
 ) -> dict[str, Any] | None:
-    from app.policy import Policy, PolicyError
-    from app.sim import PRESETS, TASKS, SimulationDiverged, export_xml, rollout
+    from app.policy import RELEASE_TASKS, Policy, PolicyError
+    from app.sim import (
+        COMMAND_HOLDS,
+        OBJECTIVE_RULES,
+        PRESETS,
+        TASKS,
+        SimulationDiverged,
+        export_xml,
+        rollout,
+    )
 
     if not task:
         raise BadInput(f"--task is required: one of {', '.join(TASKS)}")
@@ -159,6 +190,14 @@ def _run(
         raise BadInput(f"unknown task {task!r}; choose one of {', '.join(TASKS)}")
     if preset not in PRESETS:
         raise BadInput(f"unknown preset {preset!r}; choose one of {', '.join(PRESETS)}")
+    if command_hold not in COMMAND_HOLDS:
+        raise BadInput(
+            f"unknown --command-hold {command_hold!r}; choose one of {', '.join(COMMAND_HOLDS)}"
+        )
+    if objective not in OBJECTIVE_RULES:
+        raise BadInput(
+            f"unknown --objective {objective!r}; choose one of {', '.join(OBJECTIVE_RULES)}"
+        )
     sources = [
         name
         for name, on in (
@@ -191,7 +230,7 @@ def _run(
             pressure_schedule_pa, release_step = _read_schedule(schedule_path, task)
         else:
             p_levels = _parse_int("--levels", levels, 2, 1000) if levels is not None else None
-            policy = Policy(levels=p_levels or DEFAULT_LEVELS, with_release=(task == "throw"))
+            policy = Policy(levels=p_levels or DEFAULT_LEVELS, with_release=task in RELEASE_TASKS)
             if random:
                 rng_seed = _parse_int("--seed", seed, 0, 2**63 - 1) if seed is not None else 0
                 th = np.random.default_rng(rng_seed).uniform(size=policy.dim)
@@ -212,6 +251,8 @@ def _run(
             release_step=release_step,
             preset=preset,
             record_qpos=save_trajectory is not None,
+            command_hold=command_hold,
+            objective_rule=objective,
         )
     except PolicyError as exc:
         raise BadInput(str(exc)) from None

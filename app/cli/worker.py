@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import logging
+import os
 import sys
+from pathlib import Path
 from typing import Annotated, Any
 
 import typer
@@ -16,7 +18,21 @@ ServerOpt = Annotated[
     str, typer.Option("--server", envvar="HANDFUL_SERVER", help="server URL, e.g. http://host:8000")
 ]
 TokenOpt = Annotated[
-    str, typer.Option("--token", envvar="HANDFUL_TOKEN", help="a worker token", show_default=False)
+    str | None,
+    typer.Option(
+        "--token",
+        help="a worker token (visible to anyone running ps: prefer --token-file or HANDFUL_TOKEN)",
+        show_default=False,
+    ),
+]
+TokenFileOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--token-file",
+        envvar="HANDFUL_TOKEN_FILE",
+        help="a file holding the worker token (first line)",
+        show_default=False,
+    ),
 ]
 IdOpt = Annotated[str | None, typer.Option("--worker-id", help="name in the audit log")]
 MaxTrialsOpt = Annotated[
@@ -36,6 +52,25 @@ def _setup(log_level: str) -> None:
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
     logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per request is noise
+
+
+def resolve_token(token: str | None, token_file: Path | None) -> str:
+    """The worker's token: from --token-file, else the HANDFUL_TOKEN environment variable,
+    else --token (which ``ps`` shows to everyone on the machine)."""
+    if token_file is not None:
+        try:
+            text = token_file.read_text().strip().splitlines()
+        except OSError as exc:
+            raise typer.BadParameter(f"cannot read the token file: {exc}") from None
+        if not text or not text[0].strip():
+            raise typer.BadParameter(f"the token file {token_file} is empty")
+        return text[0].strip()
+    env = os.environ.get("HANDFUL_TOKEN", "").strip()
+    if env:
+        return env
+    if token:
+        return token
+    raise typer.BadParameter("give the worker's token: --token-file PATH or HANDFUL_TOKEN")
 
 
 def _client(server: str, token: str):
@@ -69,7 +104,8 @@ def _run(worker: Any, max_trials: int | None, idle_exit: float | None) -> int:
 @worker_app.command("sim")
 def sim(
     server: ServerOpt,
-    token: TokenOpt,
+    token: TokenOpt = None,
+    token_file: TokenFileOpt = None,
     max_parallel: Annotated[
         int | None,
         typer.Option(
@@ -102,7 +138,7 @@ def sim(
     stop = StopFlag()
     stop.install()
     worker = SimWorker(
-        _client(server, token),
+        _client(server, resolve_token(token, token_file)),
         max_parallel=max_parallel,
         worker_id=worker_id,
         poll_s=poll,
@@ -120,13 +156,14 @@ def sim(
 @worker_app.command("hardware")
 def hardware(
     server: ServerOpt,
-    token: TokenOpt,
     driver: Annotated[
         str,
         typer.Option(
             "--driver", help="driver name (e.g. standin), plug-in name, or 'module:factory'"
         ),
     ],
+    token: TokenOpt = None,
+    token_file: TokenFileOpt = None,
     driver_option: Annotated[
         list[str] | None,
         typer.Option("--driver-option", "-o", help="KEY=VALUE passed to the driver (repeatable)"),
@@ -150,9 +187,8 @@ def hardware(
         raise typer.Exit(2) from None
     stop = StopFlag()
     stop.install()
-    worker = HardwareWorker(
-        _client(server, token), robot, worker_id=worker_id, poll_s=poll, stop=stop
-    )
+    client = _client(server, resolve_token(token, token_file))
+    worker = HardwareWorker(client, robot, worker_id=worker_id, poll_s=poll, stop=stop)
     logging.getLogger("handful.worker").info(
         "hardware worker %s on %s, driver %s", worker.worker_id, server, driver
     )

@@ -47,6 +47,7 @@ class Token(Base):
     label: Mapped[str] = mapped_column(String(64), default="")
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
     revoked_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
+    expires_at: Mapped[datetime | None] = mapped_column(UTCDateTime)  # None: never
 
     user: Mapped[User] = relationship(back_populates="tokens")
 
@@ -61,6 +62,9 @@ class Experiment(Base):
     task: Mapped[str] = mapped_column(String(32))
     target: Mapped[str] = mapped_column(String(16))
     sim_preset: Mapped[str] = mapped_column(String(32), default="reference")
+    # how each schedule row is applied: "zero" (held each step) or "linear" (ramped from the
+    # previous row, from zero at reset); a ramped schedule is a different motion
+    command_hold: Mapped[str] = mapped_column(String(16), default="zero", server_default="zero")
     objective_unit: Mapped[str] = mapped_column(String(16))  # m | m/s | N | score
     # policy
     levels: Mapped[int] = mapped_column(Integer)
@@ -217,7 +221,7 @@ class Preview(Base):
     id: Mapped[int] = mapped_column(primary_key=True)
     trial_id: Mapped[int] = mapped_column(ForeignKey("trials.id", ondelete="CASCADE"), index=True)
     schedule_hash: Mapped[str] = mapped_column(String(64))
-    #: the experiment's command-hold setting the preview ran with (None: the experiment has none)
+    #: the experiment's command hold the preview ran with (zero | linear)
     hold: Mapped[str | None] = mapped_column(String(64))
     sim_preset: Mapped[str] = mapped_column(String(32))
     job_id: Mapped[str] = mapped_column(String(32))

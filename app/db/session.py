@@ -21,6 +21,7 @@ from sqlalchemy import Engine, create_engine, event
 from sqlalchemy.orm import Session, sessionmaker
 from sqlalchemy.pool import QueuePool
 
+from app.db.migrate import owner_only
 from app.db.models import AuditLog
 
 _BEGIN_OPTION = "handful_sqlite_begin"
@@ -97,6 +98,7 @@ class Database:
         self, url: str, *, sqlite_synchronous: str = "FULL", busy_timeout_s: float = BUSY_TIMEOUT_S
     ) -> None:
         self.url = url
+        owner_only(url)  # an older data folder's world-readable file, too
         opts: dict[str, Any] = {
             "sqlite_synchronous": sqlite_synchronous,
             "busy_timeout_s": busy_timeout_s,
@@ -110,13 +112,6 @@ class Database:
             self.write_engine = self.engine
             self._write = make_sessionmaker(self.engine, write=True)
 
-    def writer_idle(self) -> bool:
-        """True when no session of this process holds SQLite's write connection right now
-        (always False on PostgreSQL, whose writers can wait on row locks)."""
-        if self.write_engine is self.engine:
-            return False
-        return self.write_engine.pool.checkedout() == 0  # type: ignore[attr-defined]
-
     @contextmanager
     def read(self) -> Iterator[Session]:
         """A session for reading; whatever it did is rolled back at the end."""
@@ -128,15 +123,19 @@ class Database:
 
     @contextmanager
     def write(self) -> Iterator[Session]:
-        """A session holding the write lock; committed on success, rolled back on error."""
+        """A session holding the write lock; the one place a write transaction commits: once,
+        on success. An error rolls it back, unless its ``keep_changes`` says otherwise (a
+        LeaseLost keeps the sweep that found it). Service functions flush, never commit."""
         with self._write() as session:
             try:
                 yield session
-                if session.in_transaction():  # the caller may have committed already
+            except BaseException as exc:
+                if getattr(exc, "keep_changes", False):
                     session.commit()
-            except BaseException:
-                session.rollback()
+                else:
+                    session.rollback()
                 raise
+            session.commit()
 
     def dispose(self) -> None:
         """Close all pooled connections."""

@@ -3,11 +3,13 @@
 opt = make_optimizer("bo-lei", dim=11, seed=0)
 theta = opt.suggest(1)          # (1, 11) in [0, 1]
 opt.observe(theta[0], 17.3)     # or observe_many([Observation(...), ...]) to rebuild
+
+Importing this package loads no torch: BoTorch is imported when a BO optimiser is built.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from app.optim.base import (
     Observation,
@@ -15,37 +17,20 @@ from app.optim.base import (
     OptimError,
     Optimizer,
     SettingsError,
+    Surrogate,
 )
 from app.optim.baselines import CEM, CMAES, OptunaSampler, RandomSearch
-from app.optim.bo import BayesOpt
+from app.optim.methods import (
+    BASELINE_METHODS,
+    BO_METHODS,
+    DEFAULT_METHOD,
+    METHODS,
+    NEEDS_LEVELS,
+    OptimizerSpec,
+)
 
-# BO variants: method name → fixed settings (a caller's settings may override them).
-BO_METHODS: dict[str, dict[str, Any]] = {
-    "bo-lei": {"acquisition": "logei", "model_preset": "paper"},
-    "bo-ucb": {"acquisition": "ucb", "model_preset": "paper", "kappa": 0.9},
-    "bo-lei-default": {"acquisition": "logei", "model_preset": "default"},
-    # LogEI on today's default GP, searched in TuRBO-1's trust region around the best trial
-    "bo-turbo": {"acquisition": "logei", "model_preset": "default", "trust_region": True},
-    # bo-lei-default that never suggests a schedule already observed or pending (needs levels=P)
-    "bo-lei-distinct": {"acquisition": "logei", "model_preset": "default", "distinct": True},
-    # GP over the pressure levels, bang-bang-rich initial design, acquisition optimised on the
-    # level grid, never an action sequence seen (needs levels=P)
-    "bo-levels": {
-        "acquisition": "logei",
-        "model_preset": "default",
-        "space": "levels",
-        "initial_design": "corners",
-        "raw_samples": 1024,
-        "num_restarts": 4,
-        "fit_maxiter": 75,
-    },
-}
-#: the method a new experiment gets unless it names one (see docs/bench/optim.md)
-DEFAULT_METHOD = "bo-lei-default"
-BASELINE_METHODS = ("cem", "random", "optuna-tpe", "optuna-gp", "cmaes")
-METHODS: tuple[str, ...] = (*BO_METHODS, *BASELINE_METHODS)
-# Methods whose settings need the policy's P (levels=…); the benchmark passes it.
-NEEDS_LEVELS = frozenset({"bo-levels", "bo-lei-distinct"})
+if TYPE_CHECKING:
+    from app.optim.bo import BayesOpt
 
 
 def make_optimizer(method: str, dim: int, *, seed: int, **settings: Any) -> Optimizer:
@@ -58,6 +43,8 @@ def make_optimizer(method: str, dim: int, *, seed: int, **settings: Any) -> Opti
         raise SettingsError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
     try:
         if method in BO_METHODS:
+            from app.optim.bo import BayesOpt
+
             opt: Optimizer = BayesOpt(dim, seed=seed, **{**BO_METHODS[method], **settings})
         elif method == "cem":
             opt = CEM(dim, seed=seed, **settings)
@@ -73,7 +60,21 @@ def make_optimizer(method: str, dim: int, *, seed: int, **settings: Any) -> Opti
     return opt
 
 
+def build_optimizer(spec: OptimizerSpec) -> Optimizer:
+    """The optimiser ``spec`` describes (the one way the service and the benchmarks build one)."""
+    return make_optimizer(spec.method, spec.dim, seed=spec.seed, **spec.kwargs())
+
+
+def __getattr__(name: str) -> Any:
+    if name == "BayesOpt":  # loads torch and BoTorch
+        from app.optim.bo import BayesOpt
+
+        return BayesOpt
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 __all__ = [
+    "BASELINE_METHODS",
     "BO_METHODS",
     "CEM",
     "CMAES",
@@ -85,8 +86,11 @@ __all__ = [
     "ObservationError",
     "OptimError",
     "Optimizer",
+    "OptimizerSpec",
     "OptunaSampler",
     "RandomSearch",
     "SettingsError",
+    "Surrogate",
+    "build_optimizer",
     "make_optimizer",
 ]

@@ -8,6 +8,7 @@ may live only in memory. Per-call randomness is derived from the seed and the da
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
@@ -41,15 +42,21 @@ def call_seed(seed: int, n_observed: int, n_pending: int, salt: int = 0) -> int:
     return int(ss.generate_state(1, dtype=np.uint32)[0] >> 1)
 
 
-class Optimizer:
+class Optimizer(ABC):
     """Ask/tell over the unit box [0,1]^dim; subclasses implement ``_suggest``.
 
     Args:
         dim: D, the number of policy parameters.
         seed: the seed every call derives its randomness from.
+
+    Attributes:
+        method: the name ``make_optimizer`` built it under (one of ``METHODS``).
+        n_initial: suggestions drawn from the initial design before any model is used
+            (0: the method has no separate initial design).
     """
 
     method: str = ""
+    n_initial: int = 0
 
     def __init__(self, dim: int, *, seed: int) -> None:
         if isinstance(dim, bool) or not isinstance(dim, int | np.integer) or dim < 1:
@@ -148,7 +155,7 @@ class Optimizer:
             [o.sem for o in obs],
         )
 
-    def _on_observe(self) -> None:
+    def _on_observe(self) -> None:  # noqa: B027 (an optional hook, not abstract)
         """Hook: invalidate caches after new data."""
 
     # --- asking --------------------------------------------------------------------------------
@@ -165,5 +172,19 @@ class Optimizer:
         out = np.asarray(self._suggest(int(n), pend), dtype=np.float64)
         return np.clip(out.reshape(int(n), self.dim), 0.0, 1.0)
 
+    @abstractmethod
     def _suggest(self, n: int, pending: np.ndarray) -> np.ndarray:
-        raise NotImplementedError
+        """(n, D) new θ given the (k, D) pending θ (already checked)."""
+
+
+class Surrogate(ABC):
+    """An optimiser with a model of the objective that the service can ask (the dashboard's
+    predictions and the GP insight). Needs at least 2 observations."""
+
+    @abstractmethod
+    def predict(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Posterior mean (n,) and std (n,) of the objective at θ (n, dim), in its units."""
+
+    @abstractmethod
+    def lengthscales(self) -> np.ndarray:
+        """(dim,) fitted lengthscale per θ dimension."""

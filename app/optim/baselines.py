@@ -15,10 +15,16 @@ import numpy as np
 
 from app.optim.base import Optimizer, SettingsError, call_seed
 
+MAX_SETTING = 10_000  # a population, popsize or startup count beyond this is no sane setting
 
-def _positive_int(name: str, value: Any, minimum: int = 1) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
-        raise SettingsError(f"{name} must be an integer ≥ {minimum}, got {value!r}")
+
+def _positive_int(name: str, value: Any, minimum: int = 1, maximum: int = MAX_SETTING) -> int:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | np.integer)
+        or not minimum <= value <= maximum
+    ):
+        raise SettingsError(f"{name} must be an integer in {minimum}..{maximum}, got {value!r}")
     return int(value)
 
 

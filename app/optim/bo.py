@@ -9,16 +9,16 @@ Two search representations:
     of its action (``g``'s digits, each scaled to [0,1]) and the release step to [0,1], so the
     GP sees pressures rather than action indices; the acquisition is optimised over the level
     grid by discrete local search and the result is mapped back to the centre of its θ bin.
+
+Reads no environment and sets no process-wide state: torch's thread count is the entry
+point's choice (``app.procs.set_torch_threads``: the server, the sweep, the benchmarks).
 """
 
 from __future__ import annotations
 
 import math
-import os
 import threading
 import warnings
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -38,40 +38,22 @@ from botorch.models.utils.gpytorch_modules import (
     get_gaussian_likelihood_with_gamma_prior,
     get_matern_kernel_with_gamma_prior,
 )
-from botorch.optim import optimize_acqf
+from botorch.optim import optimize_acqf, optimize_acqf_discrete_local_search
 from botorch.sampling import SobolQMCNormalSampler
 from gpytorch.mlls import ExactMarginalLogLikelihood
 
-from app.optim.base import Optimizer, SettingsError, call_seed
+from app.optim.base import Optimizer, SettingsError, Surrogate, call_seed
+from app.policy import N_PAIRED, Policy, PolicyError
 
 ACQUISITIONS = ("logei", "ucb", "qlognei")
 MODEL_PRESETS = ("paper", "default")
 SPACES = ("theta", "levels")
 INITIAL_DESIGNS = ("sobol", "corners")
-N_PAIRED = 6  # paired commands per action (see app.policy)
+FIT_MODES = ("full", "warm")
 
 DTYPE = torch.float64
 # Torch's RNG is process-global; fork it per call under a lock so threads cannot interleave.
 _TORCH_RNG_LOCK = threading.Lock()
-#: intra-op threads for GP fits and acquisition searches. These GPs are small (N ≤ ~1000), so
-#: one thread is as fast as two on an idle machine and several times faster on a busy one
-#: (N = 100, D = 11: 1.5 s with 1 thread vs 11-13 s with 2, at load average 9 on 2 cores).
-#: Parallelism comes from running many optimisers/rollouts side by side instead.
-TORCH_THREADS = max(1, int(os.environ.get("HANDFUL_TORCH_THREADS", "1")))
-
-
-@contextmanager
-def _torch_threads() -> Iterator[None]:
-    """Run the enclosed torch work on ``TORCH_THREADS`` threads; restore the setting after."""
-    before = torch.get_num_threads()
-    if before == TORCH_THREADS:
-        yield
-        return
-    torch.set_num_threads(TORCH_THREADS)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
 
 
 @dataclass(frozen=True)
@@ -93,6 +75,23 @@ class BOSettings:
     fit_maxiter: int | None = None
     trust_region: bool = False
     distinct: bool = False
+    fit_mode: str = "full"
+    refit_every: int = 10
+    refit_fraction: float = 0.1
+    warm_maxiter: int = 20
+
+
+#: integer settings and their sane ranges (beyond them a suggestion costs minutes or more)
+SETTING_RANGES: dict[str, tuple[int, int]] = {
+    "num_restarts": (1, 64),
+    "raw_samples": (1, 8192),
+    "mc_samples": (1, 4096),
+    "horizon": (1, 100),
+    "fit_maxiter": (1, 10_000),
+    "n_initial": (2, 10_000),
+    "refit_every": (1, 10_000),
+    "warm_maxiter": (1, 10_000),
+}
 
 
 def _check_settings(dim: int, settings: dict[str, Any]) -> BOSettings:
@@ -115,18 +114,20 @@ def _check_settings(dim: int, settings: dict[str, Any]) -> BOSettings:
         )
     if not (isinstance(s.kappa, int | float) and math.isfinite(s.kappa) and s.kappa >= 0):
         raise SettingsError(f"kappa must be a finite number ≥ 0, got {s.kappa!r}")
-    for name in ("num_restarts", "raw_samples", "mc_samples", "horizon"):
+    for name, (low, high) in SETTING_RANGES.items():
         v = getattr(s, name)
-        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-            raise SettingsError(f"{name} must be an integer ≥ 1, got {v!r}")
-    if s.fit_maxiter is not None and (
-        isinstance(s.fit_maxiter, bool) or not isinstance(s.fit_maxiter, int) or s.fit_maxiter < 1
+        if v is None and name in ("fit_maxiter", "n_initial"):
+            continue
+        if isinstance(v, bool) or not isinstance(v, int) or not low <= v <= high:
+            raise SettingsError(f"{name} must be an integer in {low}..{high}, got {v!r}")
+    if s.fit_mode not in FIT_MODES:
+        raise SettingsError(f"fit_mode must be one of {FIT_MODES}, got {s.fit_mode!r}")
+    if not (
+        isinstance(s.refit_fraction, int | float)
+        and not isinstance(s.refit_fraction, bool)
+        and 0.0 <= s.refit_fraction <= 10.0
     ):
-        raise SettingsError(f"fit_maxiter must be an integer ≥ 1, got {s.fit_maxiter!r}")
-    if s.n_initial is not None and (
-        isinstance(s.n_initial, bool) or not isinstance(s.n_initial, int) or s.n_initial < 2
-    ):
-        raise SettingsError(f"n_initial must be an integer ≥ 2, got {s.n_initial!r}")
+        raise SettingsError(f"refit_fraction must be a number in [0, 10], got {s.refit_fraction!r}")
     if not isinstance(s.trust_region, bool):
         raise SettingsError(f"trust_region must be true or false, got {s.trust_region!r}")
     if s.trust_region and s.space != "theta":
@@ -194,63 +195,16 @@ def trust_region_state(y: np.ndarray, n_initial: int, dim: int) -> TrustRegion:
     return TrustRegion(length, successes, failures)
 
 
-class LevelSpace:
-    """θ (D,) ↔ features (F,) = per-step paired-command levels / (P−1), plus release / (H−1).
-
-    Mirrors ``app.policy.Policy.actions_from_theta`` (C-order digits, first most significant).
-    """
-
-    def __init__(self, levels: int, horizon: int, with_release: bool) -> None:
-        self.levels = levels
-        self.horizon = horizon
-        self.with_release = with_release
-        self.n_actions = levels**N_PAIRED
-        self.n_features = horizon * N_PAIRED + int(with_release)
-
-    def to_features(self, theta: np.ndarray) -> np.ndarray:
-        """(N, D) θ → (N, F) features on the level grid in [0,1]."""
-        th = np.atleast_2d(theta)
-        a = np.minimum(np.floor(th[:, : self.horizon] * self.n_actions), self.n_actions - 1)
-        digits = np.stack(
-            np.unravel_index(a.astype(np.int64), (self.levels,) * N_PAIRED), axis=-1
-        )  # (N, H, 6)
-        feats = digits.reshape(th.shape[0], -1) / (self.levels - 1)
-        if self.with_release:
-            r = np.minimum(np.floor(th[:, self.horizon] * self.horizon), self.horizon - 1)
-            feats = np.concatenate([feats, (r / max(self.horizon - 1, 1))[:, None]], axis=1)
-        return feats
-
-    def keys(self, theta: np.ndarray) -> list[tuple[int, ...]]:
-        """(N, D) θ → one key per row: its H action indices (and release step), the schedule
-        ``Policy.decode`` gives. Equal keys ⇔ the same pressure schedule and release."""
-        th = np.atleast_2d(theta)
-        a = np.minimum(np.floor(th[:, : self.horizon] * self.n_actions), self.n_actions - 1)
-        cols = [a.astype(np.int64)]
-        if self.with_release:
-            r = np.minimum(np.floor(th[:, self.horizon] * self.horizon), self.horizon - 1)
-            cols.append(r.astype(np.int64)[:, None])
-        return [tuple(int(v) for v in row) for row in np.concatenate(cols, axis=1)]
-
-    def to_theta(self, feats: np.ndarray) -> np.ndarray:
-        """(N, F) features (snapped to the grid) → (N, D) θ at the centres of their bins."""
-        f = np.atleast_2d(feats)
-        n = f.shape[0]
-        digits = np.rint(np.clip(f[:, : self.horizon * N_PAIRED], 0, 1) * (self.levels - 1))
-        digits = digits.astype(np.int64).reshape(n, self.horizon, N_PAIRED)
-        a = np.ravel_multi_index(tuple(np.moveaxis(digits, -1, 0)), (self.levels,) * N_PAIRED)
-        theta = (a + 0.5) / self.n_actions
-        if self.with_release:
-            r = np.rint(np.clip(f[:, -1], 0, 1) * max(self.horizon - 1, 1))
-            theta = np.concatenate([theta, ((r + 0.5) / self.horizon)[:, None]], axis=1)
-        return theta
-
-    def choices(self) -> list[torch.Tensor]:
-        """The grid values of each feature (for discrete local search)."""
-        lv = torch.linspace(0, 1, self.levels, dtype=DTYPE)
-        out = [lv] * (self.horizon * N_PAIRED)
-        if self.with_release:
-            out.append(torch.linspace(0, 1, self.horizon, dtype=DTYPE))
-        return out
+def anchor_size(n: int, every: int, fraction: float) -> int:
+    """The largest anchor ≤ ``n``: the observation counts at which a ``fit_mode="warm"`` GP is
+    fitted from scratch. Anchors start at 2 and step by ``max(every, ceil(fraction · a))``, so
+    full fits thin out as the data grows (at N = 500 with 10 / 0.1: every 50 trials)."""
+    a = 2
+    while True:
+        nxt = a + max(every, math.ceil(fraction * a))
+        if nxt > n:
+            return a
+        a = nxt
 
 
 def build_gp(
@@ -293,11 +247,16 @@ def fit_gp(model: SingleTaskGP, maxiter: int | None = None) -> SingleTaskGP:
     return model
 
 
+def _raw_hyperparameters(model: SingleTaskGP) -> dict[str, torch.Tensor]:
+    """A fitted GP's raw hyperparameters (name → detached copy), to start another fit from."""
+    return {k: v.detach().clone() for k, v in model.named_parameters()}
+
+
 def _unit_bounds(f: int) -> torch.Tensor:
     return torch.stack([torch.zeros(f, dtype=DTYPE), torch.ones(f, dtype=DTYPE)])
 
 
-class BayesOpt(Optimizer):
+class BayesOpt(Optimizer, Surrogate):
     """GP-based BO on [0,1]^dim.
 
     Settings:
@@ -316,8 +275,13 @@ class BayesOpt(Optimizer):
             to its lowest/highest value with probability ``corner_prob``: bang-bang actions).
         trust_region: optimise the acquisition in TuRBO-1's box around the best observation,
             its sides scaled by the GP's lengthscales (see ``trust_region_state``).
-        distinct: never suggest θ whose schedule (action indices and release step, see
-            ``LevelSpace.keys``; needs ``levels``) was observed or is pending: the acquisition's
+        fit_mode: "full" (the paper: every GP fitted from the priors' defaults) or "warm" (fit
+            from scratch every ``refit_every`` trials or ``refit_fraction`` of N, whichever is
+            more; start every other fit from the last such fit's hyperparameters, for at most
+            ``warm_maxiter`` L-BFGS-B iterations: near the optimum, more only wander along flat
+            directions of the likelihood).
+        distinct: never suggest θ whose schedule (``Policy.grid_from_theta``: the decoded
+            levels and release step; needs ``levels``) was observed or is pending: the acquisition's
             best local optimum with a new schedule, else the best new one of its raw samples.
     """
 
@@ -328,29 +292,57 @@ class BayesOpt(Optimizer):
         self.settings = _check_settings(self.dim, settings)
         s = self.settings
         self.n_initial = s.n_initial if s.n_initial is not None else self.dim + 1
-        self.space: LevelSpace | None = None
+        #: the policy's θ ↔ schedule codec, when the settings work on its level grid
+        self.policy: Policy | None = None
         if s.space == "levels" or s.initial_design == "corners" or s.distinct:
-            self.space = LevelSpace(s.levels or 2, s.horizon, self.dim == s.horizon + 1)
+            try:
+                self.policy = Policy(
+                    levels=s.levels or 2, horizon=s.horizon, with_release=self.dim > s.horizon
+                )
+            except PolicyError as exc:
+                raise SettingsError(str(exc)) from None
         self._model: SingleTaskGP | None = None
         self._model_n = -1
+        # fit_mode="warm": the last anchor's size and fitted raw hyperparameters
+        self._anchor: tuple[int, dict[str, torch.Tensor]] | None = None
 
     # --- representation -----------------------------------------------------------------------
     @property
     def _use_levels(self) -> bool:
         return self.settings.space == "levels"
 
+    def _grid(self) -> tuple[Policy, np.ndarray]:
+        """The policy and the number of values of each of its grid coordinates."""
+        assert self.policy is not None
+        return self.policy, np.asarray(self.policy.grid_sizes())
+
     def _features(self, theta: np.ndarray) -> np.ndarray:
-        if self._use_levels:
-            assert self.space is not None
-            return self.space.to_features(theta)
-        return np.atleast_2d(theta)
+        """(N, D) θ → the GP's inputs: θ, or the grid coordinates scaled to [0, 1]."""
+        if not self._use_levels:
+            return np.atleast_2d(theta)
+        policy, sizes = self._grid()
+        return policy.grid_from_theta(theta) / np.maximum(sizes - 1, 1)
+
+    def _theta_of_features(self, feats: np.ndarray) -> np.ndarray:
+        """(N, F) features on the grid → (N, D) θ at the centres of their bins."""
+        policy, sizes = self._grid()
+        scale = np.maximum(sizes - 1, 1)
+        return policy.theta_from_grid(np.rint(np.clip(np.atleast_2d(feats), 0, 1) * scale))
 
     # --- model --------------------------------------------------------------------------------
     def _on_observe(self) -> None:
         self._model = None
 
-    def _train_tensors(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    def _train_tensors(
+        self, n: int | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """(N, F) inputs, (N, 1) outcomes and (N, 1) noise variances or None, of the first ``n``
+        observations (all by default); the same tensors the model at ``n`` observations saw."""
         x, y, sem = self.train_data()
+        if n is not None:
+            x, y, sem = x[:n], y[:n], (None if sem is None else sem[:n])
+            if sem is not None and not np.isfinite(sem).any():
+                sem = None
         tx = torch.as_tensor(self._features(x), dtype=DTYPE)
         ty = torch.as_tensor(y, dtype=DTYPE).unsqueeze(-1)
         if sem is None:
@@ -362,19 +354,47 @@ class BayesOpt(Optimizer):
         yvar = np.maximum(filled**2, floor)
         return tx, ty, torch.as_tensor(yvar, dtype=DTYPE).unsqueeze(-1)
 
+    def _fit(self, n: int, start: dict[str, torch.Tensor] | None = None) -> SingleTaskGP:
+        """The GP of the first ``n`` observations, fitted from the priors' defaults or, with
+        ``start``, from those hyperparameters (raw parameter name → tensor)."""
+        tx, ty, tyvar = self._train_tensors(n)
+        with _TORCH_RNG_LOCK, torch.random.fork_rng():
+            torch.manual_seed(call_seed(self.seed, n, 0, salt=1))
+            gp = build_gp(tx, ty, tyvar, self.settings.model_preset)
+            maxiter = self.settings.fit_maxiter
+            if start is not None:
+                gp.load_state_dict(start, strict=False)
+                maxiter = min(maxiter or self.settings.warm_maxiter, self.settings.warm_maxiter)
+            return fit_gp(gp, maxiter)
+
     def model(self) -> SingleTaskGP:
-        """The GP fitted to all observations so far (refit after any new observation)."""
+        """The GP fitted to all observations so far (refit after any new observation).
+
+        ``fit_mode="full"`` (the paper) fits every GP from the priors' defaults.
+        ``fit_mode="warm"`` fits from scratch only at anchor sizes (``anchor_size``) and starts
+        every other fit from the last anchor's hyperparameters, a few L-BFGS-B steps instead of
+        about a hundred at N = 500. Either way the model is a function of the data alone, so a
+        rebuilt optimiser agrees with a live one (a rebuilt one pays for its anchor fit once).
+        """
         if self.n_observed < 2:
             raise SettingsError("the GP needs at least 2 observations")
-        if self._model is None or self._model_n != self.n_observed:
-            tx, ty, tyvar = self._train_tensors()
-            with _TORCH_RNG_LOCK, _torch_threads(), torch.random.fork_rng():
-                torch.manual_seed(call_seed(self.seed, self.n_observed, 0, salt=1))
-                self._model = fit_gp(
-                    build_gp(tx, ty, tyvar, self.settings.model_preset),
-                    self.settings.fit_maxiter,
-                )
-            self._model_n = self.n_observed
+        n = self.n_observed
+        if self._model is not None and self._model_n == n:
+            return self._model
+        s = self.settings
+        if s.fit_mode == "full":
+            self._model = self._fit(n)
+        else:
+            a = anchor_size(n, s.refit_every, s.refit_fraction)
+            if a == n:
+                self._model = self._fit(n)
+                self._anchor = (n, _raw_hyperparameters(self._model))
+            else:
+                if self._anchor is None or self._anchor[0] != a:
+                    self._anchor = (a, _raw_hyperparameters(self._fit(a)))
+                self._model = self._fit(n, start=self._anchor[1])
+        self._model_n = n
+        assert self._model is not None
         return self._model
 
     def predict(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -423,26 +443,19 @@ class BayesOpt(Optimizer):
         if s.initial_design == "sobol" and not self._use_levels:
             engine = torch.quasirandom.SobolEngine(self.dim, scramble=True, seed=self.seed)
             return engine.draw(start + count, dtype=DTYPE)[start:].numpy()
-        assert self.space is not None
-        f = self.space.n_features
-        engine = torch.quasirandom.SobolEngine(f, scramble=True, seed=self.seed)
+        policy, sizes = self._grid()
+        engine = torch.quasirandom.SobolEngine(len(sizes), scramble=True, seed=self.seed)
         u = engine.draw(start + count, dtype=DTYPE)[start:].numpy()
         if s.initial_design == "corners":
             rng = np.random.default_rng([self.seed & 0xFFFFFFFF, 7, start, count])
             flip = rng.random(u.shape) < s.corner_prob
             u = np.where(flip, np.rint(rng.random(u.shape)), u)
-        n_level_feats = self.space.horizon * N_PAIRED
-        levels = np.floor(u[:, :n_level_feats] * self.space.levels).clip(0, self.space.levels - 1)
-        u[:, :n_level_feats] = levels / (self.space.levels - 1)
-        if self.space.with_release:
-            h = self.space.horizon
-            u[:, -1] = np.floor(u[:, -1] * h).clip(0, h - 1) / max(h - 1, 1)
-        return self.space.to_theta(u)
+        return policy.theta_from_grid(np.floor(u * sizes).clip(0, sizes - 1))
 
     def _keys(self, theta: np.ndarray) -> list[tuple[Any, ...]]:
         """Identity of each θ row: its schedule when the levels are known, else θ itself."""
-        if self.space is not None:
-            return list(self.space.keys(theta))
+        if self.policy is not None:
+            return [tuple(row) for row in self.policy.grid_from_theta(theta).tolist()]
         return [tuple(np.round(row, 12).tolist()) for row in np.atleast_2d(theta)]
 
     def _design_points(self, start: int, count: int, pending: np.ndarray) -> np.ndarray:
@@ -497,84 +510,59 @@ class BayesOpt(Optimizer):
     ) -> np.ndarray:
         """Maximise ``acq`` over the level grid: (q, F) features, none of them already seen.
 
-        Scores ``raw_samples`` random grid points plus mutants of the best observations,
-        then hill-climbs from the best ``num_restarts`` over single-feature changes. For q > 1,
-        picks greedily, each pick becoming pending for the next (MC acquisitions).
+        BoTorch's ``optimize_acqf_discrete_local_search``: from each start, best-improvement
+        moves of one grid coordinate until a local optimum; for q > 1 greedily, each pick
+        pending for the next and avoided. The first pick starts from the best
+        ``num_restarts`` of ``raw_samples`` random grid points plus mutants of the best
+        observations (the acquisition's peaks are often near them).
         """
-        assert self.space is not None
         s = self.settings
-        sp = self.space
-        sizes = np.array([len(c) for c in sp.choices()])  # grid points per feature
+        _, sizes = self._grid()  # grid points per feature
         scale = np.maximum(sizes - 1, 1)
-
-        def to_x(idx: np.ndarray) -> torch.Tensor:
-            return torch.as_tensor(idx / scale, dtype=DTYPE)
-
-        def score(idx: np.ndarray) -> np.ndarray:
-            with torch.no_grad():
-                xs = to_x(idx).unsqueeze(-2)
-                vals = [acq(xs[i : i + 1024]) for i in range(0, len(xs), 1024)]
-            return torch.cat(vals).numpy()
-
-        seen = {tuple(r) for r in np.rint(x_seen.numpy() * scale).astype(np.int64)}
+        seen_x = x_seen.numpy()
+        seen = {tuple(r) for r in np.rint(seen_x * scale).astype(np.int64).tolist()}
         _, y, _ = self.train_data()
-        top = np.rint(x_seen.numpy()[: len(y)][np.argsort(-y)[:5]] * scale).astype(np.int64)
-        picks: list[np.ndarray] = []
-        for _ in range(q):
-            pool = [rng.integers(0, sizes, size=(s.raw_samples, len(sizes)))]
-            for base in top:
-                mut = np.repeat(base[None], 64, axis=0)
-                for row in mut:
-                    k = rng.integers(1, 4)
-                    j = rng.choice(len(sizes), size=k, replace=False)
-                    row[j] = rng.integers(0, sizes[j])
-                pool.append(mut)
-            cand = np.unique(np.concatenate(pool), axis=0)
-            cand = cand[[tuple(r) not in seen for r in cand]]
-            vals = score(cand)
-            order = np.argsort(-vals)[: s.num_restarts]
-            starts, start_vals = cand[order], vals[order]
-            for _round in range(20):
-                moved = False
-                for i in range(len(starts)):
-                    nb = np.repeat(starts[i][None], int(sizes.sum()), axis=0)
-                    feat = np.repeat(np.arange(len(sizes)), sizes)
-                    lvl = np.concatenate([np.arange(n) for n in sizes])
-                    nb[np.arange(len(nb)), feat] = lvl
-                    keep = [(tuple(r) not in seen) and (r != starts[i]).any() for r in nb]
-                    nb = nb[keep]
-                    if not len(nb):
-                        continue
-                    v = score(nb)
-                    j = int(np.argmax(v))
-                    if v[j] > start_vals[i]:
-                        starts[i], start_vals[i], moved = nb[j], v[j], True
-                if not moved:
-                    break
-            best = starts[int(np.argmax(start_vals))]
-            picks.append(best)
-            seen.add(tuple(best))
-            if q > 1 and hasattr(acq, "set_X_pending"):
-                prev = acq.X_pending
-                new = to_x(best[None])
-                acq.set_X_pending(new if prev is None else torch.cat([prev, new]))
-        return np.stack(picks) / scale
+        top = np.rint(seen_x[: len(y)][np.argsort(-y)[:5]] * scale).astype(np.int64)
+        pool = [rng.integers(0, sizes, size=(s.raw_samples, len(sizes)))]
+        for base in top:
+            mut = np.repeat(base[None], 64, axis=0)
+            for row in mut:
+                k = rng.integers(1, 4)
+                j = rng.choice(len(sizes), size=k, replace=False)
+                row[j] = rng.integers(0, sizes[j])
+            pool.append(mut)
+        cand = np.unique(np.concatenate(pool), axis=0)
+        cand = torch.as_tensor(cand[[tuple(r) not in seen for r in cand.tolist()]] / scale)
+        with torch.no_grad():
+            xs = cand.unsqueeze(-2)
+            vals = torch.cat([acq(xs[i : i + 1024]) for i in range(0, len(xs), 1024)]).numpy()
+        starts = cand[np.argsort(-vals)[: s.num_restarts]].unsqueeze(-2)
+        picks, _ = optimize_acqf_discrete_local_search(
+            acq,
+            discrete_choices=[torch.arange(n, dtype=DTYPE) / max(n - 1, 1) for n in sizes],
+            q=q,
+            num_restarts=s.num_restarts,
+            raw_samples=s.raw_samples,
+            X_avoid=x_seen,
+            batch_initial_conditions=starts,
+            return_acq_values=False,
+        )
+        return picks.numpy()
 
     def _acquire(self, q: int, pending: np.ndarray) -> np.ndarray:
         s = self.settings
         seed = call_seed(self.seed, self.n_observed, len(pending))
         model = self.model()
         pend = torch.as_tensor(self._features(pending), dtype=DTYPE) if len(pending) else None
-        with _TORCH_RNG_LOCK, _torch_threads(), torch.random.fork_rng():
+        with _TORCH_RNG_LOCK, torch.random.fork_rng():
             torch.manual_seed(seed)
             acq = self._acquisition(model, pend, q, seed)
             if self._use_levels:
-                assert self.space is not None
                 x_seen = self._train_tensors()[0]
                 if pend is not None:
                     x_seen = torch.cat([x_seen, pend])
                 cand = self._grid_search(acq, q, x_seen, np.random.default_rng(seed))
-                return self.space.to_theta(cand)
+                return self._theta_of_features(cand)
             if s.distinct:
                 seen = self.train_data()[0]
                 if len(pending):
@@ -598,10 +586,9 @@ class BayesOpt(Optimizer):
         nor picked before it; picks after the first are pending for the next (MC acqs)."""
         from botorch.utils.sampling import draw_sobol_samples
 
-        assert self.space is not None
         s = self.settings
         bounds = self.search_bounds()
-        seen = set(self.space.keys(seen_theta))
+        seen = set(self._keys(seen_theta))
         picks: list[np.ndarray] = []
         for k in range(q):
             cands, vals = optimize_acqf(
@@ -622,7 +609,7 @@ class BayesOpt(Optimizer):
                 chosen = self._best_new(raw.reshape(-1, self.dim), raw_vals.reshape(-1), seen)
             if chosen is None:
                 raise SettingsError("no schedule left that was not already observed or pending")
-            seen.update(self.space.keys(chosen[None]))
+            seen.update(self._keys(chosen[None]))
             picks.append(chosen)
             if k + 1 < q and hasattr(acq, "set_X_pending"):
                 new = torch.as_tensor(chosen[None], dtype=DTYPE)
@@ -634,9 +621,8 @@ class BayesOpt(Optimizer):
         self, x: torch.Tensor, vals: torch.Tensor, seen: set[tuple[int, ...]]
     ) -> np.ndarray | None:
         """The highest-valued row of ``x`` (n, dim) whose schedule key is not in ``seen``."""
-        assert self.space is not None
         xs = x.numpy()
-        keys = self.space.keys(xs)
+        keys = self._keys(xs)
         for i in torch.argsort(vals, descending=True).tolist():
             if keys[i] not in seen:
                 return xs[i].copy()

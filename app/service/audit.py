@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from datetime import datetime
 from typing import Any
 
@@ -11,10 +12,20 @@ from sqlalchemy.orm import Session
 
 from app.db.base import utcnow
 from app.db.models import AuditLog
-from app.db.prepared import Prepared
 
 # Built once: constructing a statement costs more than running it on SQLite.
-_INSERT = Prepared(insert(AuditLog.__table__))
+_INSERT = insert(AuditLog.__table__)
+
+
+def json_safe(value: Any) -> Any:
+    """``value`` with NaN and ±inf (which JSON cannot hold) as null, recursively."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_safe(v) for v in value]
+    return value
 
 
 def record(
@@ -33,12 +44,13 @@ def record(
 ) -> None:
     """Append one audit row in the caller's transaction (a plain INSERT, committed with it).
 
-    Rows are written when recorded, so their ids follow the order of the calls.
+    Rows are written when recorded, so their ids follow the order of the calls. ``detail``
+    is stored as strict JSON (NaN and ±inf become null).
     ``session``: the caller's Session, or the Connection it holds.
     """
     conn = session.connection() if isinstance(session, Session) else session
-    _INSERT.execute(
-        conn,
+    conn.execute(
+        _INSERT,
         {
             "at": now or utcnow(),
             "actor": actor,
@@ -49,6 +61,6 @@ def record(
             "trial_id": trial_id,
             "before": before,
             "after": after,
-            "detail": detail,
+            "detail": None if detail is None else json_safe(detail),
         },
     )

@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -13,10 +14,12 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.db.models import Measurement, Trial
+from app.optim import OptimError, Surrogate
+from app.policy import policy_dim
 from app.service import lifecycle as lc
 from app.service.auth import Actor
 from app.service.errors import InvalidInput
-from app.service.experiments import get_experiment, read_experiment, touch
+from app.service.experiments import executed_theta, get_experiment, read_experiment, touch
 from app.service.measurements import check_value, store_measurement
 from app.service.schemas import (
     ImportIn,
@@ -31,6 +34,7 @@ from app.service.trials import (
     _next_index,
     list_trials,
     optimizer_inputs,
+    rebuild_optimizer,
 )
 
 
@@ -69,10 +73,17 @@ CSV_FIELDS = (
 )
 
 
+#: after θ: who made the trial, who confirmed it (hardware) and when, and every raw repeat
+CSV_TAIL = ("created_by", "confirmed_by", "confirmed_at", "repeats")
+
+
 def export_csv(session: Session, experiment_id: int) -> str:
-    """One row per trial: index, status, objective, SEM, θ (planned and executed), times."""
+    """One row per trial: index, status, objective, SEM, θ (planned and executed), times, the
+    experiment's command hold (how the schedule's rows were applied); then who made and
+    confirmed it, and its raw repeats (``value unit source by who; ...``, a withdrawn one says
+    so, with its reason)."""
     exp = get_experiment(session, experiment_id)
-    dim = exp.horizon + int(exp.with_release)
+    dim = policy_dim(exp.horizon, exp.with_release)
     trials = list_trials(session, experiment_id)
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
@@ -81,13 +92,36 @@ def export_csv(session: Session, experiment_id: int) -> str:
             *CSV_FIELDS,
             *(f"theta_{i}" for i in range(dim)),
             *(f"executed_theta_{i}" for i in range(dim)),
+            "command_hold",
+            *CSV_TAIL,
         ]
     )
+    repeats: dict[int, list[str]] = {}
+    for m in session.scalars(
+        select(Measurement)
+        .join(Trial, Measurement.trial_id == Trial.id)
+        .where(Trial.experiment_id == experiment_id)
+        .order_by(Measurement.id)
+    ):
+        text = f"{m.value!r} {m.unit} {m.source} by {m.created_by}"
+        if m.withdrawn_at is not None:
+            text += f" (withdrawn by {m.withdrawn_by}: {m.withdrawn_reason})"
+        repeats.setdefault(m.trial_id, []).append(text)
     for t in trials:
         d = t.model_dump(mode="json")
         row = ["" if d[f] is None else d[f] for f in CSV_FIELDS]
         ex = t.executed_theta or [""] * dim
-        w.writerow([*row, *(repr(v) for v in t.theta), *(v if v == "" else repr(v) for v in ex)])
+        tail = ["" if d[f] is None else d[f] for f in CSV_TAIL[:-1]]
+        w.writerow(
+            [
+                *row,
+                *(repr(v) for v in t.theta),
+                *(v if v == "" else repr(v) for v in ex),
+                exp.command_hold,
+                *tail,
+                "; ".join(repeats.get(t.id, [])),
+            ]
+        )
     return buf.getvalue()
 
 
@@ -115,9 +149,11 @@ def import_observations(
             )
         except InvalidInput as exc:
             raise InvalidInput(f"observations[{i}]: {exc}") from None
-        trial.executed_theta = list(trial.theta)
         trial.executed_pressure_schedule_pa = trial.pressure_schedule_pa
         trial.executed_release_step = trial.release_step
+        trial.executed_theta = executed_theta(
+            exp, trial.theta, trial.pressure_schedule_pa, trial.release_step
+        )
         store_measurement(
             session,
             trial,
@@ -138,15 +174,22 @@ def import_observations(
         )
         out.append(trial)
     touch(exp)
-    session.commit()
+    session.flush()
     return [TrialRead.build(t, has_trajectory=False) for t in out]
 
 
-def model_insight(session: Session, experiment_id: int, *, n_points: int = 41) -> ModelRead:
-    """Lengthscales, the incumbent and 1-D posterior slices through it (one per θ dim)."""
-    from app.optim import OptimError
-    from app.service.trials import build_optimizer
+def model_insight(
+    session: Session,
+    experiment_id: int,
+    *,
+    n_points: int = 41,
+    viewer: Callable[[Any, list[float], int], dict[str, Any]] | None = None,
+) -> ModelRead:
+    """Lengthscales, the incumbent and 1-D posterior slices through it (one per θ dim).
 
+    ``viewer(inputs, incumbent, n_points) -> model_view's dict`` fits or reuses the model
+    (the server passes ``ComputeRunner``'s, which reuses the suggestion's fit); by default
+    the optimiser is rebuilt here."""
     exp = get_experiment(session, experiment_id)
     inputs = optimizer_inputs(session, exp)
     obs = inputs.observations
@@ -178,7 +221,8 @@ def model_insight(session: Session, experiment_id: int, *, n_points: int = 41) -
         .order_by(Trial.objective.desc(), Trial.index)
     ).first()
     assert best is not None
-    inc = list(best.executed_theta if best.executed_theta is not None else best.theta)
+    theta = best.executed_theta if best.executed_theta is not None else best.theta
+    inc = [float(v) for v in theta]
     head = dict(
         base,
         incumbent_theta=inc,
@@ -186,21 +230,27 @@ def model_insight(session: Session, experiment_id: int, *, n_points: int = 41) -
         incumbent_trial_id=best.id,
         incumbent_trial_index=best.index,
     )
-    opt = build_optimizer(inputs)
-    if not hasattr(opt, "predict"):
-        return ModelRead(
-            **head, lengthscales=None, slices=[], message=f"{exp.method} has no surrogate model"
-        )
-    if len(obs) < 2:
-        return ModelRead(
-            **head, lengthscales=None, slices=[], message="the GP needs at least 2 observations"
-        )
+    if viewer is None:
+        view = model_view(rebuild_optimizer(inputs), inputs, inc, n_points)
+    else:
+        view = viewer(inputs, inc, n_points)
+    return ModelRead(**head, **view)
+
+
+def model_view(opt: Any, inputs: Any, incumbent: list[float], n_points: int) -> dict[str, Any]:
+    """``{lengthscales, slices, message}`` of a fitted optimiser (the CPU-heavy part of
+    ``model_insight``, run where the optimiser is)."""
+    none: dict[str, Any] = {"lengthscales": None, "slices": []}
+    if not isinstance(opt, Surrogate):
+        return {**none, "message": f"{inputs.spec.method} has no surrogate model"}
+    if len(inputs.observations) < 2:
+        return {**none, "message": "the GP needs at least 2 observations"}
     try:
         ls = [float(v) for v in opt.lengthscales()]
         grid = np.linspace(0.0, 1.0, n_points)
         slices = []
         for d in range(inputs.dim):
-            pts = np.tile(np.asarray(inc, dtype=np.float64), (n_points, 1))
+            pts = np.tile(np.asarray(incumbent, dtype=np.float64), (n_points, 1))
             pts[:, d] = grid
             mean, std = opt.predict(pts)
             slices.append(
@@ -212,8 +262,8 @@ def model_insight(session: Session, experiment_id: int, *, n_points: int = 41) -
                 )
             )
     except (OptimError, ValueError, RuntimeError) as exc:
-        return ModelRead(**head, lengthscales=None, slices=[], message=f"model unavailable: {exc}")
-    return ModelRead(**head, lengthscales=ls, slices=slices)
+        return {"lengthscales": None, "slices": [], "message": f"model unavailable: {exc}"}
+    return {"lengthscales": ls, "slices": slices, "message": ""}
 
 
 def _finite(v: float) -> float:

@@ -6,10 +6,14 @@ from typing import Any
 
 
 class ServiceError(Exception):
-    """Base of every domain error; ``str(err)`` is the one-line message a client sees."""
+    """Base of every domain error; ``str(err)`` is the one-line message a client sees.
+
+    ``keep_changes``: ``Database.write`` commits what the transaction did before the error
+    (a lease sweep before a LeaseLost) instead of rolling it back."""
 
     status_code = 400
     code = "bad_request"
+    keep_changes = False
 
 
 class InvalidInput(ServiceError):
@@ -66,6 +70,7 @@ class DuplicateRequest(Conflict):
     """
 
     code = "duplicate_request"
+    keep_changes = True
 
     def __init__(self, message: str, *, receipt: dict[str, Any] | None = None) -> None:
         super().__init__(message)
@@ -76,6 +81,7 @@ class LeaseLost(Conflict):
     """A heartbeat or result for a lease that expired or was revoked."""
 
     code = "lease_lost"
+    keep_changes = True
 
 
 class SafetyViolation(ServiceError):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 from sqlalchemy import bindparam, func, select, update
 from sqlalchemy import inspect as sa_inspect
 from sqlalchemy.engine import Connection
@@ -11,8 +12,8 @@ from sqlalchemy.orm import Session
 
 from app.db.base import utcnow
 from app.db.models import AuditLog, Experiment, Trial
-from app.db.prepared import Prepared
-from app.policy import HardwareCeilings, Policy, PolicyError, PressureLimits
+from app.optim.methods import METHODS, OptimizerSpec
+from app.policy import RELEASE_TASKS, HardwareCeilings, Policy, PolicyError, PressureLimits
 from app.service.audit import record
 from app.service.auth import Actor
 from app.service.errors import InvalidInput, NotFound
@@ -44,13 +45,15 @@ def policy_of(exp: Experiment) -> Policy:
     )
 
 
-def hold_setting(exp: Any) -> str | None:
-    """The experiment's command-hold setting as text, or None when it has none.
-
-    (The setting itself is issue 12's; a preview and a confirmation must agree on it.)
-    """
-    hold = getattr(exp, "command_hold", None)
-    return None if hold is None else str(hold)
+def executed_theta(
+    exp: Experiment, planned_theta: Any, executed_schedule_pa: Any, executed_release_step: Any
+) -> list[float]:
+    """The θ the optimiser observes for a trial of ``exp`` that ran ``executed_schedule_pa``:
+    ``Policy.executed_theta``, the one rule (the planned θ when the trial ran its plan)."""
+    theta = policy_of(exp).executed_theta(
+        np.asarray(planned_theta, dtype=np.float64), executed_schedule_pa, executed_release_step
+    )
+    return [float(v) for v in theta]
 
 
 def touch(exp: Experiment) -> None:
@@ -59,7 +62,7 @@ def touch(exp: Experiment) -> None:
     exp.updated_at = utcnow()
 
 
-_TOUCH = Prepared(
+_TOUCH = (
     update(Experiment.__table__)
     .where(Experiment.__table__.c.id == bindparam("experiment_id"))
     .values(version=Experiment.__table__.c.version + 1, updated_at=bindparam("now"))
@@ -75,24 +78,22 @@ def touch_id(session: Session, experiment_id: int, *, connection: Connection | N
         touch(session.identity_map[key])
         return
     conn = connection or session.connection()
-    _TOUCH.execute(conn, {"experiment_id": experiment_id, "now": utcnow()})
+    conn.execute(_TOUCH, {"experiment_id": experiment_id, "now": utcnow()})
 
 
-def optimizer_kwargs(exp: Experiment) -> dict[str, Any]:
-    """Settings passed to ``app.optim.make_optimizer`` for this experiment."""
-    from app.optim import BO_METHODS, NEEDS_LEVELS
-
-    kwargs: dict[str, Any] = {}
-    if exp.method in BO_METHODS:
-        if exp.acquisition is not None:
-            kwargs["acquisition"] = exp.acquisition
-        if exp.kappa is not None:
-            kwargs["kappa"] = exp.kappa
-        kwargs["n_initial"] = exp.n_initial
-        if exp.method in NEEDS_LEVELS:
-            kwargs.update(levels=exp.levels, horizon=exp.horizon)
-    kwargs.update(exp.optimizer_settings or {})
-    return kwargs
+def optimizer_spec(exp: Experiment) -> OptimizerSpec:
+    """What ``app.optim.build_optimizer`` builds this experiment's optimiser from."""
+    return OptimizerSpec(
+        exp.method,
+        levels=exp.levels,
+        horizon=exp.horizon,
+        with_release=exp.with_release,
+        seed=exp.seed,
+        settings=dict(exp.optimizer_settings or {}),
+        n_initial=exp.n_initial,
+        acquisition=exp.acquisition,
+        kappa=exp.kappa,
+    )
 
 
 def create_experiment(
@@ -102,13 +103,15 @@ def create_experiment(
     actor: Actor,
     ceilings: HardwareCeilings | None = None,
 ) -> Experiment:
-    """Validate and store a new experiment (committed).
+    """Validate and store a new experiment (flushed; the caller's ``Database.write`` commits).
 
     A hardware experiment's limits must lie within ``ceilings`` (the server's settings; the
     paper robot's when None): they can only narrow them."""
-    from app.optim import METHODS, OptimError, make_optimizer
+    from app.optim import OptimError, build_optimizer
 
-    with_release = spec.with_release if spec.with_release is not None else spec.task == "throw"
+    with_release = (
+        spec.with_release if spec.with_release is not None else spec.task in RELEASE_TASKS
+    )
     if spec.target == "hardware" and spec.limits is None:
         raise InvalidInput(
             "a hardware experiment needs limits (nominal_pa, max_step_pa, source_pa)"
@@ -150,6 +153,7 @@ def create_experiment(
         task=spec.task,
         target=spec.target,
         sim_preset=spec.sim_preset,
+        command_hold=spec.command_hold,
         objective_unit=spec.objective_unit or DEFAULT_UNIT[spec.task],
         levels=spec.levels,
         horizon=spec.horizon,
@@ -173,7 +177,7 @@ def create_experiment(
         created_by=actor.username,
     )
     try:  # refuse settings the optimiser would refuse later, now, with its message
-        make_optimizer(exp.method, policy.dim, seed=exp.seed, **optimizer_kwargs(exp))
+        build_optimizer(optimizer_spec(exp))
     except (OptimError, ValueError, TypeError) as exc:
         raise InvalidInput(f"optimizer settings: {exc}") from None
     _check_preset(spec.sim_preset)
@@ -189,7 +193,7 @@ def create_experiment(
         after="active",
         detail={"name": exp.name, "task": exp.task, "target": exp.target},
     )
-    session.commit()
+    session.flush()
     return exp
 
 
@@ -289,7 +293,7 @@ def list_experiments(session: Session) -> list[ExperimentRead]:
 def patch_experiment(
     session: Session, experiment_id: int, patch: ExperimentPatch, *, actor: Actor
 ) -> ExperimentRead:
-    """Change status / notes / budget (committed, audited)."""
+    """Change status / notes / budget (audited; ``Database.write`` commits)."""
     exp = get_experiment(session, experiment_id)
     changes = patch.model_dump(exclude_unset=True)
     if changes.get("budget") is not None:
@@ -321,7 +325,7 @@ def patch_experiment(
             after=None if value is None else str(value)[:2000],
         )
     touch(exp)
-    session.commit()
+    session.flush()
     return read_experiment(session, exp.id)
 
 

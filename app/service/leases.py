@@ -21,9 +21,9 @@ from sqlalchemy.orm import Session
 
 from app.db.base import utcnow
 from app.db.models import Experiment, Lease, Trial
-from app.policy import N_CHAMBERS, HardwareCeilings, Policy, PolicyError, schedule_hash
+from app.policy import HardwareCeilings, PolicyError, schedule_hash
 from app.service import lifecycle as lc
-from app.service.artifacts import decode_npz_b64, store_trajectory
+from app.service.artifacts import store_trajectory
 from app.service.audit import record
 from app.service.auth import OPERATOR, Actor
 from app.service.errors import (
@@ -34,7 +34,7 @@ from app.service.errors import (
     NotFound,
     SafetyViolation,
 )
-from app.service.experiments import policy_of, touch
+from app.service.experiments import executed_theta, touch
 from app.service.measurements import check_value, store_measurement
 from app.service.schemas import ClaimIn, ClaimRead, ExperimentRead, LeaseRead, ResultIn, TrialRead
 from app.service.trials import check_schedule_safe
@@ -42,50 +42,27 @@ from app.service.trials import check_schedule_safe
 SYSTEM_ACTOR = "system"
 
 
-def theta_from_schedule(
-    policy: Policy, pressure_schedule_pa: Any, release_step: int | None
-) -> np.ndarray:
-    """θ (D,) of an executed schedule (H, 12) Pa: exact when on the policy's level grid,
-    else each pair snapped to its nearest level (what the GP is fitted on)."""
-    sched = np.asarray(pressure_schedule_pa, dtype=np.float64)
-    if sched.shape != (policy.horizon, N_CHAMBERS) or not np.all(np.isfinite(sched)):
-        raise InvalidInput(
-            f"executed_pressure_schedule_pa must be {policy.horizon}×{N_CHAMBERS} finite "
-            f"numbers (Pa), got shape {sched.shape}"
-        )
-    table = policy.level_pressures_pa()  # (12, P)
-    levels = np.empty((policy.horizon, 6), dtype=np.int64)
-    for u in range(6):
-        pair = sched[:, 2 * u : 2 * u + 2]  # (H, 2)
-        err = np.abs(table[None, 2 * u : 2 * u + 2, :] - pair[:, :, None]).mean(axis=1)  # (H, P)
-        levels[:, u] = np.argmin(err, axis=1)
-    actions = np.ravel_multi_index(tuple(levels.T), (policy.levels,) * 6)
-    if policy.with_release:
-        if release_step is None or not 1 <= int(release_step) <= policy.horizon:
-            raise InvalidInput(f"executed_release_step must be in 1..{policy.horizon}")
-    else:
-        release_step = None
-    try:
-        return policy.theta_from_actions(np.asarray(actions), release_step)
-    except PolicyError as exc:
-        raise InvalidInput(str(exc)) from None
-
-
 # --- expiry ----------------------------------------------------------------------------------
+SERVICE_WORKER = "service"  # the worker_id of a run inside the server (app.service.runs)
+
+
 def grant_restart_grace(
     session: Session, *, lease_seconds: float, now: datetime | None = None
 ) -> int:
-    """At server start: give every active lease ``lease_seconds`` from now. Flushes.
+    """At server start: give every active worker lease ``lease_seconds`` from now. Flushes.
 
     Leases run on wall-clock time, but a worker cannot heartbeat while the server is down; without
     this a slow restart would expire healthy leases and rerun (or, on hardware, hold for review)
     trials whose workers are still busy with them. A worker that really died still loses its
-    lease ``lease_seconds`` after the restart.
+    lease ``lease_seconds`` after the restart. Runs inside a server (``SERVICE_WORKER``) get no
+    grace: the process renewing them is gone unless another server still renews them.
     """
     now = now or utcnow()
     until = now + timedelta(seconds=lease_seconds)
     n = 0
-    for lease in session.scalars(select(Lease).where(Lease.status == "active")):
+    for lease in session.scalars(
+        select(Lease).where(Lease.status == "active", Lease.worker_id != SERVICE_WORKER)
+    ):
         if lease.expires_at < until:
             lease.expires_at = until
             n += 1
@@ -93,8 +70,29 @@ def grant_restart_grace(
     return n
 
 
-def sweep_expired(session: Session, *, max_attempts: int, now: datetime | None = None) -> int:
-    """Expire every active lease past its time; requeue/fail/needs_review its trial. Flushes."""
+def _expired_outcome(exp: Experiment, trial: Trial, why: str, max_attempts: int) -> tuple[str, str]:
+    if exp.target == "hardware":
+        return lc.NEEDS_REVIEW, f"{why}; a hardware trial is never rerun on its own"
+    if trial.attempts < max_attempts:
+        return lc.QUEUED, f"{why}; requeued (attempt {trial.attempts}/{max_attempts})"
+    return lc.FAILED, f"{why}; {trial.attempts} attempts, giving up"
+
+
+def sweep_expired(
+    session: Session,
+    *,
+    max_attempts: int,
+    now: datetime | None = None,
+    orphan_after_s: float = 60.0,
+) -> int:
+    """Expire every active lease past its time; requeue/fail/needs_review its trial. Flushes.
+
+    A sim trial run inside a server whose lease expired (the server died or stopped
+    renewing it) fails with that reason. A trial ``running`` for ``orphan_after_s`` with no
+    active lease at all (left by an older version, or by hand) fails (sim) or goes to
+    needs_review (hardware) too: no trial stays running for ever. Returns the leases expired
+    plus the orphans ended.
+    """
     now = now or utcnow()
     leases = list(
         session.scalars(select(Lease).where(Lease.status == "active", Lease.expires_at < now))
@@ -120,13 +118,15 @@ def sweep_expired(session: Session, *, max_attempts: int, now: datetime | None =
         )
         if trial.status != lc.RUNNING:
             continue
-        why = f"worker {lease.worker_id} stopped heartbeating (lease {lease.id} expired)"
-        if exp.target == "hardware":
-            new, reason = lc.NEEDS_REVIEW, f"{why}; a hardware trial is never rerun on its own"
-        elif trial.attempts < max_attempts:
-            new, reason = lc.QUEUED, f"{why}; requeued (attempt {trial.attempts}/{max_attempts})"
+        if lease.worker_id == SERVICE_WORKER:
+            new, reason = (
+                lc.FAILED,
+                f"the server stopped while simulating it (service lease {lease.id} expired "
+                "unrenewed); nothing was recorded",
+            )
         else:
-            new, reason = lc.FAILED, f"{why}; {trial.attempts} attempts, giving up"
+            why = f"worker {lease.worker_id} stopped heartbeating (lease {lease.id} expired)"
+            new, reason = _expired_outcome(exp, trial, why, max_attempts)
         lc.transition(
             session,
             trial,
@@ -137,8 +137,37 @@ def sweep_expired(session: Session, *, max_attempts: int, now: datetime | None =
             now=now,
         )
         touch(exp)
+    has_lease = (
+        select(Lease.id).where(Lease.trial_id == Trial.id, Lease.status == "active").exists()
+    )
+    orphans = list(
+        session.scalars(
+            select(Trial).where(
+                Trial.status == lc.RUNNING,
+                Trial.updated_at < now - timedelta(seconds=orphan_after_s),
+                ~has_lease,
+            )
+        )
+    )
+    for trial in orphans:
+        exp = trial.experiment
+        why = f"running for over {orphan_after_s:g} s with no lease (nothing is running it)"
+        if exp.target == "hardware":
+            new, reason = lc.NEEDS_REVIEW, f"{why}; a person decides"
+        else:
+            new, reason = lc.FAILED, why
+        lc.transition(
+            session,
+            trial,
+            new,
+            actor=SYSTEM_ACTOR,
+            reason=reason,
+            action="trial.orphan_swept",
+            now=now,
+        )
+        touch(exp)
     session.flush()
-    return len(leases)
+    return len(leases) + len(orphans)
 
 
 # --- claim -----------------------------------------------------------------------------------
@@ -244,7 +273,7 @@ def claim(
                 lease_expires_at=lease.expires_at,
             )
         )
-    session.commit()
+    session.flush()
     return out
 
 
@@ -269,16 +298,16 @@ def _lost(lease: Lease, trial: Trial | None) -> LeaseLost:
 def heartbeat(
     session: Session, lease_id: str, *, actor: Actor, lease_seconds: float, max_attempts: int
 ) -> LeaseRead:
-    """Extend an active lease by ``lease_seconds`` (committed). LeaseLost if it expired."""
+    """Extend an active lease by ``lease_seconds``. LeaseLost if it expired (what the sweep
+    did is kept: LeaseLost keeps the transaction's changes)."""
     now = utcnow()
     sweep_expired(session, max_attempts=max_attempts, now=now)
     lease = _get_lease(session, lease_id, actor)
     if lease.status != "active":
-        session.commit()  # keep what the sweep did
         raise _lost(lease, session.get(Trial, lease.trial_id))
     lease.heartbeat_at = now
     lease.expires_at = now + timedelta(seconds=lease_seconds)
-    session.commit()
+    session.flush()
     return LeaseRead(
         lease_id=lease.id,
         trial_id=lease.trial_id,
@@ -302,13 +331,16 @@ def report_result(
     actor: Actor,
     artifacts_dir: Path,
     max_attempts: int,
-    max_bytes: int,
+    trajectory: bytes | None = None,
 ) -> dict[str, Any]:
     """Record what a worker executed and measured under its lease (idempotent per lease).
 
-    The executed schedule gives the executed θ the GP is fitted on. A fault sends a sim
+    The executed schedule gives the executed θ the GP is fitted on (``Policy.executed_theta``:
+    the planned θ when the trial ran its plan). A fault sends a sim
     trial to failed and a hardware trial to needs_review; an executed schedule beyond the
     limits sends it to needs_review; otherwise an objective completes the trial.
+    ``trajectory``: the body's ``trajectory_npz_b64`` decoded and checked by
+    ``app.service.artifacts.decode_npz_b64`` before the write transaction began.
     """
     now = utcnow()
     sweep_expired(session, max_attempts=max_attempts, now=now)
@@ -318,17 +350,15 @@ def report_result(
     digest = _result_sha256(trial_id, body)
     if lease.status == "completed":
         if lease.result_sha256 == digest and lease.result_response is not None:
-            session.commit()
+            session.flush()
             return dict(lease.result_response)
         raise DuplicateRequest(
             f"lease {lease.id} already has a different result recorded; nothing stored again"
         )
     trial = session.get(Trial, trial_id, with_for_update=True)
     if lease.status != "active" or trial is None:
-        session.commit()
         raise _lost(lease, trial)
     exp = trial.experiment
-    policy = policy_of(exp)
     # --- validate everything before storing anything
     exec_sched = body.executed_pressure_schedule_pa
     exec_release = body.executed_release_step
@@ -337,14 +367,17 @@ def report_result(
     ran = exec_sched is not None or not body.fault
     if exec_sched is None:
         exec_sched, exec_release = trial.pressure_schedule_pa, trial.release_step
-    exec_theta = theta_from_schedule(policy, exec_sched, exec_release)
-    if not policy.with_release:
+    if not exp.with_release:
         exec_release = None
+    try:
+        exec_theta = executed_theta(exp, trial.theta, exec_sched, exec_release)
+    except PolicyError as exc:
+        raise InvalidInput(f"executed result: {exc}") from None
     if body.objective is not None:
         check_value(body.objective, exp.objective_unit, exp.objective_unit, what="objective")
-    raw = None
-    if body.trajectory_npz_b64 is not None:
-        raw = decode_npz_b64(body.trajectory_npz_b64, max_bytes=max_bytes)
+    raw = trajectory
+    if body.trajectory_npz_b64 is not None and raw is None:
+        raise InvalidInput("the trajectory must be decoded (decode_npz_b64) before the lock")
     beyond = None
     try:
         check_schedule_safe(exp, exec_sched, exec_release)
@@ -354,7 +387,7 @@ def report_result(
     if ran:
         trial.executed_pressure_schedule_pa = np.asarray(exec_sched, dtype=np.float64).tolist()
         trial.executed_release_step = exec_release
-        trial.executed_theta = [float(v) for v in exec_theta]
+        trial.executed_theta = exec_theta
     if raw is not None:
         store_trajectory(session, artifacts_dir, trial, raw, actor=actor, tag=lease.id[:8])
     if body.objective is not None:
@@ -401,5 +434,5 @@ def report_result(
     lease.result_sha256 = digest
     lease.result_response = response
     touch(exp)
-    session.commit()
+    session.flush()
     return response

@@ -19,7 +19,6 @@ from sqlalchemy.orm.attributes import set_committed_value
 
 from app.db.base import utcnow
 from app.db.models import Experiment, IdempotencyKey, Lease, Measurement, Trial
-from app.db.prepared import Prepared
 from app.service import lifecycle as lc
 from app.service.audit import record
 from app.service.auth import Actor
@@ -79,12 +78,11 @@ def check_value(value: float, unit: str, expected_unit: str, *, what: str = "val
         raise InvalidInput(f"{what} {value!r} {unit} is outside the plausible [{lo:g}, {hi:g}]")
 
 
-# Built once, run as ``Prepared`` statements (app.db.prepared): a measurement post is the
-# service's most frequent write, seven statements on the session's connection (no ORM load,
-# no flush unless the status changes) and one commit.
+# Built once: a measurement post is a handful of Core statements on the session's connection
+# (no ORM load, no flush unless the status changes); ``Database.write`` commits it.
 _MEASUREMENTS = Measurement.__table__
 _TRIALS = Trial.__table__
-_VALUES_OF = Prepared(
+_VALUES_OF = (
     select(_MEASUREMENTS.c.value, _MEASUREMENTS.c.source)
     .where(
         _MEASUREMENTS.c.trial_id == bindparam("trial_id"),
@@ -92,26 +90,26 @@ _VALUES_OF = Prepared(
     )
     .order_by(_MEASUREMENTS.c.id)
 )
-_INSERT_REPEAT = Prepared(insert(_MEASUREMENTS).returning(_MEASUREMENTS.c.id))
-_SET_OBJECTIVE = Prepared(
+_INSERT_REPEAT = insert(_MEASUREMENTS).returning(_MEASUREMENTS.c.id)
+_SET_OBJECTIVE = (
     update(_TRIALS)
     .where(_TRIALS.c.id == bindparam("trial_id"))
     .values(
-        objective=bindparam("objective"),
-        objective_sem=bindparam("objective_sem"),
-        n_measurements=bindparam("n_measurements"),
-        updated_at=bindparam("updated_at"),
+        objective=bindparam("new_objective"),
+        objective_sem=bindparam("new_objective_sem"),
+        n_measurements=bindparam("new_n_measurements"),
+        updated_at=bindparam("new_updated_at"),
     )
 )
 _KEYS = IdempotencyKey.__table__
 _KEY_SEEN = select(_KEYS.c.request_sha256, _KEYS.c.summary, _KEYS.c.receipt).where(
     _KEYS.c.scope == bindparam("scope"), _KEYS.c.key == bindparam("key")
 )
-_INSERT_KEY = Prepared(insert(_KEYS))
+_INSERT_KEY = insert(_KEYS)
 _LEASES = Lease.__table__
 #: what a post needs of its trial (status, objective, the experiment's unit, a worker's
 #: lease) and whether its Idempotency-Key was seen: one round trip
-_TRIAL_TO_MEASURE = Prepared(
+_TRIAL_TO_MEASURE = (
     select(
         _TRIALS.c.id,
         _TRIALS.c.experiment_id,
@@ -155,7 +153,7 @@ def _refresh_objective(
     withdrawn, from one of ``sources``), in SQL and on ``trial``; return (objective, SEM)."""
     counted_values = [
         float(v)
-        for v, src in _VALUES_OF.execute(db, {"trial_id": trial.id}).fetchall()
+        for v, src in db.execute(_VALUES_OF, {"trial_id": trial.id}).fetchall()
         if src in sources
     ]
     objective: float | None
@@ -165,7 +163,9 @@ def _refresh_objective(
     else:
         objective, sem = None, None
     counted = dict(zip(_COUNTED, (objective, sem, len(counted_values), now), strict=True))
-    _SET_OBJECTIVE.execute(db, {"trial_id": trial.id, **counted})
+    db.execute(
+        _SET_OBJECTIVE, {"trial_id": trial.id, **{f"new_{k}": v for k, v in counted.items()}}
+    )
     state = sa_inspect(trial, raiseerr=False)
     for name, value in counted.items():
         if state is not None:
@@ -212,7 +212,7 @@ def store_measurement(
             "created_at": now,
             "supersedes_id": supersedes_id,
         }
-        (repeat_id,) = _INSERT_REPEAT.execute(db, row).fetchone()
+        (repeat_id,) = db.execute(_INSERT_REPEAT, row).fetchone()
         stored.append(MeasurementRead(id=repeat_id, **row))
     before = trial.objective
     objective, _ = _refresh_objective(session, db, trial, objective_sources, now)
@@ -258,7 +258,8 @@ def _withdraw(m: Measurement, reason: str, actor: Actor, now: Any) -> None:
 def withdraw_measurement(
     session: Session, measurement_id: int, reason: str, *, actor: Actor
 ) -> MeasurementReceipt:
-    """Withdraw a repeat (kept, no longer counted), recompute the objective (committed)."""
+    """Withdraw a repeat (kept, no longer counted), recompute the objective (flushed;
+    the caller's ``Database.write`` commits)."""
     m, trial = _correctable(session, measurement_id)
     now = utcnow()
     before = trial.objective
@@ -282,7 +283,7 @@ def withdraw_measurement(
     )
     touch_id(session, trial.experiment_id)
     receipt = MeasurementReceipt.build(trial, [MeasurementRead.model_validate(m)])
-    session.commit()
+    session.flush()
     return receipt
 
 
@@ -290,7 +291,7 @@ def supersede_measurement(
     session: Session, measurement_id: int, body: SupersedeIn, *, actor: Actor
 ) -> MeasurementReceipt:
     """Replace a repeat by a corrected value: the old one is kept, withdrawn with the reason;
-    the new one (same source) points to it; the objective is recomputed (committed)."""
+    the new one (same source) points to it; the objective is recomputed (flushed)."""
     m, trial = _correctable(session, measurement_id)
     exp = trial.experiment
     check_value(body.value, body.unit, exp.objective_unit, what="the corrected value")
@@ -327,7 +328,7 @@ def supersede_measurement(
     )
     touch_id(session, trial.experiment_id)
     receipt = MeasurementReceipt.build(trial, stored)
-    session.commit()
+    session.flush()
     return receipt
 
 
@@ -362,7 +363,7 @@ def add_measurements(
     idempotency_key: str | None,
     actor: Actor,
 ) -> MeasurementReceipt:
-    """Record an operator's repeats for a trial, once per Idempotency-Key (committed).
+    """Record an operator's repeats for a trial, once per Idempotency-Key.
 
     A queued or running trial without a worker's lease becomes completed; a completed one
     gets its objective recomputed; a needs_review one keeps its status (a person decides).
@@ -373,8 +374,8 @@ def add_measurements(
         raise InvalidInput("the Idempotency-Key header must be printable text")
     digest = _request_sha256(trial_id, body)
     db = session.connection()
-    found = _TRIAL_TO_MEASURE.execute(
-        db, {"trial_id": trial_id, "scope": "measurements", "key": idempotency_key}
+    found = db.execute(
+        _TRIAL_TO_MEASURE, {"trial_id": trial_id, "scope": "measurements", "key": idempotency_key}
     ).fetchone()
     if found is None:
         raise NotFound(f"trial {trial_id} not found")
@@ -408,8 +409,8 @@ def add_measurements(
         )
     receipt = MeasurementReceipt.build(trial, stored)
     try:
-        _INSERT_KEY.execute(
-            db,
+        db.execute(
+            _INSERT_KEY,
             {
                 "scope": "measurements",
                 "key": idempotency_key,
@@ -425,5 +426,4 @@ def add_measurements(
         _check_key_unused(session.connection(), idempotency_key, digest)
         raise
     touch_id(session, trial.experiment_id, connection=db)
-    session.commit()  # one commit; a flush only when the status changed
     return receipt

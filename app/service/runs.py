@@ -6,29 +6,35 @@ the event loop (a sync route's thread, or the PreviewRunner's pool).
 
 from __future__ import annotations
 
+import logging
 import threading
 import uuid
 from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from datetime import datetime, timedelta
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from sqlalchemy.orm import Session
 
 from app.db.base import utcnow
-from app.db.models import Preview
+from app.db.models import Lease, Preview
 from app.db.session import Database
 from app.policy import HardwareCeilings, schedule_hash
 from app.service import lifecycle as lc
 from app.service.artifacts import npz_to_json, store_trajectory
 from app.service.audit import record
 from app.service.auth import Actor
-from app.service.errors import Conflict, NotFound
-from app.service.experiments import hold_setting, touch
+from app.service.errors import Conflict, InvalidInput, NotFound
+from app.service.experiments import executed_theta, touch
+from app.service.leases import SERVICE_WORKER
 from app.service.measurements import check_value, store_measurement
 from app.service.schemas import PreviewJobRead, TrialRead
 from app.service.trials import check_schedule_safe, get_trial
+
+log = logging.getLogger("handful.runs")
 
 
 def _trajectory_npz_bytes(result: Any) -> bytes:
@@ -40,82 +46,210 @@ def _trajectory_npz_bytes(result: Any) -> bytes:
         return path.read_bytes()
 
 
-def run_trial(db: Database, trial_id: int, *, actor: Actor, artifacts_dir: Path) -> TrialRead:
+@dataclass(frozen=True)
+class ServiceRun:
+    """A sim trial the service has started running, under its own lease."""
+
+    trial_id: int
+    lease_id: str
+    task: str
+    preset: str
+    schedule: np.ndarray
+    release_step: int | None
+    command_hold: str
+
+
+def start_run(
+    session: Session,
+    trial_id: int,
+    *,
+    actor: Actor,
+    lease_seconds: float,
+    now: datetime | None = None,
+) -> ServiceRun:
+    """queued → running under a lease held by the service (flushed; the caller commits).
+
+    Everything ``rollout`` would refuse (a horizon whose control step is not a whole number of
+    physics steps, a bad release step) is refused here as InvalidInput, the trial untouched.
+    If the server dies before ``finish_run`` the lease stops being renewed and the sweep
+    fails the trial with the reason (``app.service.leases.sweep_expired``).
+    """
+    from app.sim import check_rollout
+
+    now = now or utcnow()
+    trial = get_trial(session, trial_id, for_update=True)
+    exp = trial.experiment
+    if exp.target != "sim":
+        raise Conflict(f"trial #{trial.index} is a hardware trial; a hardware worker runs it")
+    lc.check_transition(trial, lc.RUNNING, action="run")
+    if trial.status != lc.QUEUED:
+        raise lc.IllegalTransition(
+            f"cannot run: trial #{trial.index} is {trial.status}, not queued",
+            current=trial.status,
+        )
+    sched = check_schedule_safe(exp, trial.pressure_schedule_pa, trial.release_step)
+    try:
+        check_rollout(exp.task, sched, release_step=trial.release_step, preset=exp.sim_preset)
+    except ValueError as exc:
+        raise InvalidInput(f"trial #{trial.index} cannot be simulated: {exc}") from None
+    trial.attempts += 1
+    lc.transition(session, trial, lc.RUNNING, actor=actor.username, action="trial.run", now=now)
+    lease = Lease(
+        id=str(uuid.uuid4()),
+        trial_id=trial.id,
+        worker_id=SERVICE_WORKER,
+        claimed_by=actor.username,
+        status="active",
+        attempt=trial.attempts,
+        created_at=now,
+        heartbeat_at=now,
+        expires_at=now + timedelta(seconds=lease_seconds),
+    )
+    session.add(lease)
+    touch(exp)
+    session.flush()
+    return ServiceRun(
+        trial.id,
+        lease.id,
+        exp.task,
+        exp.sim_preset,
+        sched,
+        trial.release_step,
+        exp.command_hold,
+    )
+
+
+def renew_run(
+    session: Session, run: ServiceRun, *, lease_seconds: float, now: datetime | None = None
+) -> bool:
+    """Extend the run's lease (flushed); False once it is no longer active (aborted)."""
+    now = now or utcnow()
+    lease = session.get(Lease, run.lease_id)
+    if lease is None or lease.status != "active":
+        return False
+    lease.heartbeat_at = now
+    lease.expires_at = now + timedelta(seconds=lease_seconds)
+    session.flush()
+    return True
+
+
+def finish_run(
+    session: Session,
+    run: ServiceRun,
+    result: Any,
+    error: str | None,
+    *,
+    actor: Actor,
+    artifacts_dir: Path,
+    now: datetime | None = None,
+) -> TrialRead:
+    """Record a service run's outcome: completed with its objective and trajectory, or failed
+    with ``error``; the lease ends. A trial aborted meanwhile keeps its state (result dropped)."""
+    now = now or utcnow()
+    trial = get_trial(session, run.trial_id, for_update=True)
+    exp = trial.experiment
+    lease = session.get(Lease, run.lease_id)
+    if trial.status != lc.RUNNING or lease is None or lease.status != "active":
+        return TrialRead.build(trial)  # aborted (or its lease swept) while it ran
+    lease.status = "completed"
+    lease.ended_at = now
+    trial.executed_pressure_schedule_pa = np.asarray(run.schedule).tolist()
+    trial.executed_release_step = run.release_step
+    trial.executed_theta = executed_theta(exp, trial.theta, run.schedule, run.release_step)
+    value = None if result is None else float(result.objective)
+    if value is not None and error is None:
+        try:
+            check_value(value, exp.objective_unit, exp.objective_unit, what="sim objective")
+        except InvalidInput as exc:
+            error = f"the simulator returned an unusable objective: {exc}"
+    if result is None or error is not None:
+        lc.transition(
+            session,
+            trial,
+            lc.FAILED,
+            actor=actor.username,
+            reason=error or "the simulator returned nothing",
+            action="trial.run_result",
+            now=now,
+        )
+    else:
+        assert value is not None
+        store_trajectory(
+            session, artifacts_dir, trial, _trajectory_npz_bytes(result), actor=actor, tag="service"
+        )
+        store_measurement(
+            session,
+            trial,
+            [(value, exp.objective_unit, f"simulated ({run.preset})")],
+            actor=actor,
+            source="sim",
+        )
+        lc.transition(
+            session,
+            trial,
+            lc.COMPLETED,
+            actor=actor.username,
+            action="trial.run_result",
+            detail={
+                "max_tip_speed": float(result.max_tip_speed),
+                "wall_s": float(result.wall_s),
+            },
+            now=now,
+        )
+    touch(exp)
+    session.flush()
+    session.refresh(trial, attribute_names=["artifacts"])
+    return TrialRead.build(trial)
+
+
+def run_trial(
+    db: Database, trial_id: int, *, actor: Actor, artifacts_dir: Path, lease_seconds: float = 60.0
+) -> TrialRead:
     """Simulate a queued sim trial now and record its objective and trajectory.
 
-    queued → running (committed) → rollout → completed, or failed when the simulation
-    diverges. If the trial was aborted meanwhile the result is dropped.
+    queued → running (committed, under a service lease renewed every third of
+    ``lease_seconds`` while the simulator runs) → completed, or failed with the reason when
+    the simulation diverges or the simulator raises. If the trial was aborted meanwhile the
+    result is dropped; if this process dies, the lease sweep fails the trial.
     """
     from app.sim import SimulationDiverged, rollout
 
     with db.write() as s:
-        trial = get_trial(s, trial_id, for_update=True)
-        exp = trial.experiment
-        if exp.target != "sim":
-            raise Conflict(f"trial #{trial.index} is a hardware trial; a hardware worker runs it")
-        lc.check_transition(trial, lc.RUNNING, action="run")
-        if trial.status != lc.QUEUED:
-            raise lc.IllegalTransition(
-                f"cannot run: trial #{trial.index} is {trial.status}, not queued",
-                current=trial.status,
-            )
-        sched = check_schedule_safe(exp, trial.pressure_schedule_pa, trial.release_step)
-        release = trial.release_step
-        task, preset = exp.task, exp.sim_preset
-        trial.attempts += 1
-        lc.transition(s, trial, lc.RUNNING, actor=actor.username, action="trial.run")
-        touch(exp)
+        run = start_run(s, trial_id, actor=actor, lease_seconds=lease_seconds)
+    stop = threading.Event()
+
+    def renew() -> None:
+        while not stop.wait(lease_seconds / 3):
+            try:
+                with db.write() as s:
+                    if not renew_run(s, run, lease_seconds=lease_seconds):
+                        return
+            except Exception:  # a busy database: try again at the next beat
+                log.warning("could not renew the lease of service run %s", run.lease_id)
+
+    beats = threading.Thread(target=renew, name=f"run-{trial_id}", daemon=True)
+    beats.start()
     error = None
     result = None
     try:
-        result = rollout(task, sched, release_step=release, preset=preset, record_qpos=True)
+        result = rollout(
+            run.task,
+            run.schedule,
+            release_step=run.release_step,
+            preset=run.preset,
+            record_qpos=True,
+            command_hold=run.command_hold,
+        )
     except SimulationDiverged as exc:
         error = f"simulation diverged: {exc}"
+    except Exception as exc:  # whatever went wrong, the trial must not stay running
+        log.exception("service run of trial %d failed", trial_id)
+        error = f"the simulator failed: {type(exc).__name__}: {exc}"
+    finally:
+        stop.set()
+        beats.join()
     with db.write() as s:
-        trial = get_trial(s, trial_id, for_update=True)
-        exp = trial.experiment
-        if trial.status != lc.RUNNING:  # aborted while it ran
-            return TrialRead.build(trial)
-        trial.executed_pressure_schedule_pa = np.asarray(sched).tolist()
-        trial.executed_release_step = release
-        trial.executed_theta = list(trial.theta)
-        if result is None:
-            lc.transition(
-                s,
-                trial,
-                lc.FAILED,
-                actor=actor.username,
-                reason=error or "",
-                action="trial.run_result",
-            )
-        else:
-            value = float(result.objective)
-            check_value(value, exp.objective_unit, exp.objective_unit, what="sim objective")
-            store_trajectory(
-                s, artifacts_dir, trial, _trajectory_npz_bytes(result), actor=actor, tag="service"
-            )
-            store_measurement(
-                s,
-                trial,
-                [(value, exp.objective_unit, f"simulated ({preset})")],
-                actor=actor,
-                source="sim",
-            )
-            lc.transition(
-                s,
-                trial,
-                lc.COMPLETED,
-                actor=actor.username,
-                action="trial.run_result",
-                detail={
-                    "max_tip_speed": float(result.max_tip_speed),
-                    "wall_s": float(result.wall_s),
-                },
-            )
-        touch(exp)
-        s.flush()
-        s.refresh(trial, attribute_names=["artifacts"])
-        return TrialRead.build(trial)
+        return finish_run(s, run, result, error, actor=actor, artifacts_dir=artifacts_dir)
 
 
 # --- previews --------------------------------------------------------------------------------
@@ -130,8 +264,8 @@ class PreviewJob:
     schedule: np.ndarray
     release_step: int | None
     schedule_hash: str
+    command_hold: str = "zero"
     previewed_by: str = ""
-    hold: str | None = None
     db: Database | None = None
     status: str = "queued"
     progress: float = 0.0
@@ -162,7 +296,7 @@ def record_preview(job: PreviewJob) -> None:
             Preview(
                 trial_id=trial.id,
                 schedule_hash=job.schedule_hash,
-                hold=job.hold,
+                hold=job.command_hold,
                 sim_preset=job.preset,
                 job_id=job.job_id,
                 predicted_objective=job.result.get("predicted_objective"),
@@ -178,10 +312,13 @@ def record_preview(job: PreviewJob) -> None:
             entity_id=trial.id,
             experiment_id=trial.experiment_id,
             trial_id=trial.id,
-            detail={"schedule_hash": job.schedule_hash, "hold": job.hold, "job_id": job.job_id},
+            detail={
+                "schedule_hash": job.schedule_hash,
+                "hold": job.command_hold,
+                "job_id": job.job_id,
+            },
         )
         touch(trial.experiment)
-        s.commit()
 
 
 class PreviewRunner:
@@ -215,11 +352,11 @@ class PreviewRunner:
                 trial_id=trial.id,
                 task=exp.task,
                 preset=exp.sim_preset,
+                command_hold=exp.command_hold,
                 schedule=sched,
                 release_step=trial.release_step,
                 schedule_hash=schedule_hash(sched, trial.release_step),
                 previewed_by=actor.username if actor is not None else "",
-                hold=hold_setting(exp),
                 db=db if actor is not None else None,
             )
         with self._lock:
@@ -240,6 +377,7 @@ class PreviewRunner:
                 release_step=job.release_step,
                 preset=job.preset,
                 record_qpos=True,
+                command_hold=job.command_hold,
             )
             job.progress = 0.9
             raw = _trajectory_npz_bytes(res)
@@ -270,4 +408,13 @@ class PreviewRunner:
         self._pool.shutdown(wait=False, cancel_futures=True)
 
 
-__all__ = ["PreviewJob", "PreviewRunner", "run_trial"]
+__all__ = [
+    "SERVICE_WORKER",
+    "PreviewJob",
+    "PreviewRunner",
+    "ServiceRun",
+    "finish_run",
+    "renew_run",
+    "run_trial",
+    "start_run",
+]

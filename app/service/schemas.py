@@ -6,13 +6,15 @@
 
 from __future__ import annotations
 
+import re
 from datetime import datetime
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, computed_field, field_validator
 
 from app.db.models import AuditLog, Experiment, Trial
-from app.policy import schedule_hash
+from app.optim.methods import DEFAULT_METHOD
+from app.policy import N_CHAMBERS, TaskName, policy_dim, schedule_hash
 
 DEFAULT_SOURCES = {"tip_speed": "tracker", "throw": "tape", "hammer": "tape"}
 
@@ -38,8 +40,8 @@ def sources_list(stored: str | None, task: str, target: str) -> list[str]:
     return default_objective_sources(task, target)
 
 
-TaskName = Literal["throw", "hammer", "tip_speed"]
 Target = Literal["sim", "hardware"]
+CommandHold = Literal["zero", "linear"]  # app.sim.COMMAND_HOLDS (not imported: it loads MuJoCo)
 ExperimentStatus = Literal["active", "paused", "completed", "archived"]
 Acquisition = Literal["logei", "ucb", "qlognei"]
 Unit = Literal["m", "m/s", "N", "score"]
@@ -48,8 +50,29 @@ Unit = Literal["m", "m/s", "N", "score"]
 Source = Literal["tape", "tracker", "sim", "imported"]
 
 
+# Control characters other than tab and newlines (NUL first: PostgreSQL cannot store it), and
+# in names the invisible marks that reorder text on screen (bidi controls).
+_CONTROL = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
+_BIDI = re.compile("[\u200e\u200f\u061c\u202a-\u202e\u2066-\u2069]")
+_NAMES = frozenset({"name", "username", "worker_id", "unit", "sim_preset", "method"})
+
+
 class _In(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    """Input: unknown fields refused, finite numbers only, strict types (a number is a
+    number: ``"0.5"`` or ``false`` for one is refused, not converted), and text without
+    control characters (names without bidi controls either)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
+
+    @field_validator("*", mode="after")
+    @classmethod
+    def _clean_text(cls, value: Any, info: ValidationInfo) -> Any:
+        if isinstance(value, str) and info.field_name != "password":
+            if _CONTROL.search(value):
+                raise ValueError("control characters (such as NUL) are not allowed")
+            if info.field_name in _NAMES and _BIDI.search(value):
+                raise ValueError("bidirectional-text control characters are not allowed")
+        return value
 
 
 # --- experiments -----------------------------------------------------------------------------
@@ -73,8 +96,7 @@ class ExperimentCreate(_In):
     horizon: int = Field(10, ge=1, le=100, description="H, control steps over 5 s")
     with_release: bool | None = Field(None, description="release-step parameter (throw)")
     limits: LimitsIn | None = Field(None, description="required for hardware")
-    # app.optim.DEFAULT_METHOD (not imported: it would load torch with the schemas)
-    method: str = Field("bo-lei-default", description="one of app.optim.METHODS")
+    method: str = Field(DEFAULT_METHOD, description="one of app.optim.METHODS")
     acquisition: Acquisition | None = Field(None, description="None: the method's default")
     kappa: float | None = Field(None, ge=0, le=1000, description="UCB κ (μ + √κ σ)")
     n_initial: int | None = Field(None, ge=2, le=10_000, description="random trials; D + 1")
@@ -83,6 +105,11 @@ class ExperimentCreate(_In):
     budget: int | None = Field(None, ge=1, le=1_000_000, description="max trials")
     notes: str = Field("", max_length=20_000)
     sim_preset: str = Field("reference", max_length=32)
+    command_hold: CommandHold = Field(
+        "zero",
+        description="zero: each row held for its step; linear: ramped from the previous row "
+        "(from zero pressures at the start) over the step",
+    )
     objective_unit: Unit | None = Field(
         None, description="unit of measurements; default m/s for tip_speed, else score"
     )
@@ -117,6 +144,7 @@ class ExperimentRead(BaseModel):
     task: str
     target: str
     sim_preset: str
+    command_hold: str
     objective_unit: str
     objective_sources: list[str]
     levels: int
@@ -172,12 +200,13 @@ class ExperimentRead(BaseModel):
             task=exp.task,
             target=exp.target,
             sim_preset=exp.sim_preset,
+            command_hold=exp.command_hold,
             objective_unit=exp.objective_unit,
             objective_sources=objective_sources_of(exp),
             levels=exp.levels,
             horizon=exp.horizon,
             with_release=exp.with_release,
-            dim=exp.horizon + int(exp.with_release),
+            dim=policy_dim(exp.horizon, exp.with_release),
             limits=limits,
             method=exp.method,
             acquisition=exp.acquisition,
@@ -315,7 +344,12 @@ class AuditRead(BaseModel):
 
 
 class TrialRead(BaseModel):
-    """A trial as the API shows it (see docs/ARCHITECTURE.md, "Trial JSON")."""
+    """A trial as the API shows it (see docs/ARCHITECTURE.md, "Trial JSON"): the stored
+    columns of a ``Trial`` (read by attribute), its schedule's hash and its duration."""
+
+    model_config = ConfigDict(
+        from_attributes=True, json_schema_serialization_defaults_required=True
+    )
 
     id: int
     experiment_id: int
@@ -335,7 +369,6 @@ class TrialRead(BaseModel):
     n_measurements: int
     predicted_mean: float | None
     predicted_std: float | None
-    schedule_hash: str
     confirmed_hash: str | None
     confirmed_by: str | None
     confirmed_at: datetime | None
@@ -345,50 +378,31 @@ class TrialRead(BaseModel):
     updated_at: datetime
     started_at: datetime | None
     finished_at: datetime | None
-    duration_s: float | None
-    has_trajectory: bool
+    has_trajectory: bool = False
+
+    @computed_field  # type: ignore[prop-decorator]
+    @property
+    def schedule_hash(self) -> str:
+        """What an operator's confirmation binds (``app.policy.schedule_hash``)."""
+        return schedule_hash(self.pressure_schedule_pa, self.release_step)
+
+    @computed_field  # type: ignore[prop-decorator]
+    @property
+    def duration_s(self) -> float | None:
+        """Seconds from start to finish, once both are known."""
+        if self.started_at is None or self.finished_at is None:
+            return None
+        return (self.finished_at - self.started_at).total_seconds()
 
     @classmethod
     def build(cls, t: Trial, *, has_trajectory: bool | None = None) -> TrialRead:
-        duration = None
-        if t.started_at is not None and t.finished_at is not None:
-            duration = (t.finished_at - t.started_at).total_seconds()
+        """``t`` as the API shows it; ``has_trajectory`` (None: look through its artifacts)
+        saves loading them when the caller knows."""
+        out = cls.model_validate(t)
         if has_trajectory is None:
             has_trajectory = any(a.kind == "trajectory" for a in t.artifacts)
-        return cls(
-            id=t.id,
-            experiment_id=t.experiment_id,
-            index=t.index,
-            status=t.status,
-            status_reason=t.status_reason,
-            source=t.source,
-            note=t.note,
-            theta=list(t.theta),
-            pressure_schedule_pa=[list(r) for r in t.pressure_schedule_pa],
-            release_step=t.release_step,
-            executed_theta=None if t.executed_theta is None else list(t.executed_theta),
-            executed_pressure_schedule_pa=None
-            if t.executed_pressure_schedule_pa is None
-            else [list(r) for r in t.executed_pressure_schedule_pa],
-            executed_release_step=t.executed_release_step,
-            objective=t.objective,
-            objective_sem=t.objective_sem,
-            n_measurements=t.n_measurements,
-            predicted_mean=t.predicted_mean,
-            predicted_std=t.predicted_std,
-            schedule_hash=schedule_hash(t.pressure_schedule_pa, t.release_step),
-            confirmed_hash=t.confirmed_hash,
-            confirmed_by=t.confirmed_by,
-            confirmed_at=t.confirmed_at,
-            attempts=t.attempts,
-            created_by=t.created_by,
-            created_at=t.created_at,
-            updated_at=t.updated_at,
-            started_at=t.started_at,
-            finished_at=t.finished_at,
-            duration_s=duration,
-            has_trajectory=has_trajectory,
-        )
+        out.has_trajectory = has_trajectory
+        return out
 
 
 class MeasurementReceipt(BaseModel):
@@ -444,9 +458,8 @@ class TrialDetail(TrialRead):
     def build_detail(
         cls, t: Trial, audit: list[AuditLog], previews: list[Any] | None = None
     ) -> TrialDetail:
-        base = TrialRead.build(t).model_dump()
         return cls(
-            **base,
+            **dict(TrialRead.build(t)),
             measurements=[MeasurementRead.model_validate(m) for m in t.measurements],
             previews=[PreviewRead.model_validate(p) for p in previews or []],
             audit=[AuditRead.model_validate(a) for a in audit],
@@ -513,6 +526,20 @@ class ResultIn(_In):
     trajectory_npz_b64: str | None = Field(None, description="np.savez bytes, base64")
     fault: str | None = Field(None, max_length=2000)
     summary: dict[str, Any] | None = Field(None, description="e.g. RolloutResult.to_summary()")
+
+    @field_validator("executed_pressure_schedule_pa")
+    @classmethod
+    def _rectangular(cls, rows: list[list[float]] | None) -> list[list[float]] | None:
+        if rows is None:
+            return None
+        if not rows or len(rows) > 1000:
+            raise ValueError(f"needs 1 to 1000 rows (control steps), got {len(rows)}")
+        for i, row in enumerate(rows):
+            if len(row) != N_CHAMBERS:
+                raise ValueError(
+                    f"row {i} has {len(row)} pressures; every row needs {N_CHAMBERS} (Pa)"
+                )
+        return rows
 
 
 class ResultRead(BaseModel):

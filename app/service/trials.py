@@ -4,6 +4,7 @@ resolve, confirm (hardware gate) and run in the service (sim, the pre-worker pat
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -14,11 +15,20 @@ from sqlalchemy.orm import Session
 from app.db.base import utcnow
 from app.db.models import AuditLog, Confirmation, Experiment, Lease, Preview, Trial
 from app.db.session import Database
+from app.optim import (
+    Observation,
+    OptimError,
+    Optimizer,
+    OptimizerSpec,
+    Surrogate,
+    build_optimizer,
+)
 from app.policy import (
     HardwareCeilings,
     Policy,
     PolicyError,
     PressureLimitError,
+    check_release_step,
     schedule_hash,
 )
 from app.service import lifecycle as lc
@@ -34,9 +44,8 @@ from app.service.errors import (
 )
 from app.service.experiments import (
     get_experiment,
-    hold_setting,
     limits_of,
-    optimizer_kwargs,
+    optimizer_spec,
     policy_of,
     touch,
 )
@@ -144,11 +153,15 @@ def check_schedule_safe(
     except (PolicyError, ValueError, TypeError) as exc:
         raise SafetyViolation(f"schedule refused: {exc}") from None
     check_ceilings(exp, sched, ceilings)
-    if exp.with_release:
-        if release_step is None or not 1 <= int(release_step) <= exp.horizon:
-            raise SafetyViolation(f"release_step must be in 1..{exp.horizon}, got {release_step}")
-    elif release_step is not None:
-        raise SafetyViolation("this experiment has no release step")
+    try:
+        check_release_step(
+            release_step,
+            horizon=exp.horizon,
+            with_release=exp.with_release,
+            owner="this experiment",
+        )
+    except PolicyError as exc:
+        raise SafetyViolation(str(exc)) from None
     return sched
 
 
@@ -232,11 +245,8 @@ def _new_trial(
 class OptimizerInputs:
     """What the optimiser is rebuilt from: a snapshot of the experiment's trials."""
 
-    method: str
-    dim: int
-    seed: int
-    kwargs: dict[str, Any]
-    observations: list[Any]  # app.optim.Observation, in trial index order
+    spec: OptimizerSpec
+    observations: list[Observation]  # in trial index order
     pending: np.ndarray | None  # (k, dim)
     observed_ids: tuple[int, ...]  # trials behind ``observations`` (refused ones included)
     pending_ids: frozenset[int]  # trials behind ``pending``
@@ -246,6 +256,11 @@ class OptimizerInputs:
     #: measurement (then abandoned θ count as pending: taken, never to be suggested)
     refused_penalty: float | None = None
     refused_ids: tuple[int, ...] = ()
+
+    @property
+    def dim(self) -> int:
+        """D, the length of θ."""
+        return self.spec.dim
 
 
 def refusal_penalty(values: list[float]) -> float | None:
@@ -262,8 +277,6 @@ def refusal_penalty(values: list[float]) -> float | None:
 def optimizer_inputs(session: Session, exp: Experiment) -> OptimizerInputs:
     """Completed trials with an objective (executed θ when reported), pending θ, and the
     abandoned trials (refused by an operator) as penalised observations."""
-    from app.optim import Observation
-
     trials = list(
         session.scalars(select(Trial).where(Trial.experiment_id == exp.id).order_by(Trial.index))
     )
@@ -296,14 +309,11 @@ def optimizer_inputs(session: Session, exp: Experiment) -> OptimizerInputs:
             pending.append(t.theta)
         else:
             obs.append(Observation(tuple(float(v) for v in t.theta), penalty, None))
-    dim = exp.horizon + int(exp.with_release)
+    spec = optimizer_spec(exp)
     return OptimizerInputs(
-        method=exp.method,
-        dim=dim,
-        seed=exp.seed,
-        kwargs=optimizer_kwargs(exp),
+        spec=spec,
         observations=obs,
-        pending=np.asarray(pending, dtype=np.float64).reshape(-1, dim) if pending else None,
+        pending=np.asarray(pending, dtype=np.float64).reshape(-1, spec.dim) if pending else None,
         observed_ids=tuple(observed_ids) + tuple(t.id for t in refused),
         pending_ids=frozenset(pending_ids),
         refused_hashes=frozenset(
@@ -314,28 +324,29 @@ def optimizer_inputs(session: Session, exp: Experiment) -> OptimizerInputs:
     )
 
 
-def build_optimizer(inputs: OptimizerInputs) -> Any:
-    """make_optimizer + observe_many: the optimiser exactly as the database describes it."""
-    from app.optim import make_optimizer
-
-    opt = make_optimizer(inputs.method, inputs.dim, seed=inputs.seed, **inputs.kwargs)
+def rebuild_optimizer(inputs: OptimizerInputs) -> Optimizer:
+    """build_optimizer + observe_many: the optimiser exactly as the database describes it."""
+    opt = build_optimizer(inputs.spec)
     if inputs.observations:
         opt.observe_many(inputs.observations)
     return opt
 
 
 def ask(
-    inputs: OptimizerInputs, n: int, *, timings: dict[str, float] | None = None
+    inputs: OptimizerInputs,
+    n: int,
+    *,
+    timings: dict[str, float] | None = None,
+    on_fitted: Callable[[Any], None] | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """(n, D) suggested θ, and the model's predicted mean/std there (None before a GP).
 
-    ``timings`` (if given) accumulates ``optimizer_s``: the seconds spent in make_optimizer +
-    observe_many + suggest, i.e. what the raw optimiser costs on this data.
+    ``timings`` (if given) accumulates ``optimizer_s``: the seconds spent in build_optimizer +
+    observe_many + suggest, i.e. what the raw optimiser costs on this data. ``on_fitted``
+    (if given) gets the optimiser after its suggestion (``app.service.compute`` keeps it).
     """
-    from app.optim import OptimError
-
     t0 = time.perf_counter()
-    opt = build_optimizer(inputs)
+    opt = rebuild_optimizer(inputs)
     thetas = np.asarray(opt.suggest(n, pending=inputs.pending), dtype=np.float64).reshape(n, -1)
     if timings is not None:
         timings["optimizer_s"] = timings.get("optimizer_s", 0.0) + time.perf_counter() - t0
@@ -344,12 +355,14 @@ def ask(
     # just fitted for the suggestion is reused and the prediction costs next to nothing.
     n_obs = len(inputs.observations)
     n_pending = 0 if inputs.pending is None else len(inputs.pending)
-    initial_only = n_obs < 2 or n_obs + n_pending + n <= getattr(opt, "n_initial", 0)
-    if hasattr(opt, "predict") and not initial_only:
+    initial_only = n_obs < 2 or n_obs + n_pending + n <= opt.n_initial
+    if isinstance(opt, Surrogate) and not initial_only:
         try:
             mean, std = opt.predict(thetas)
         except (OptimError, ValueError, RuntimeError):
             mean = std = None
+    if on_fitted is not None:
+        on_fitted(opt)
     return thetas, mean, std
 
 
@@ -359,13 +372,20 @@ def ask_avoiding_refused(
     n: int,
     *,
     timings: dict[str, float] | None = None,
+    ask_once: Callable[[OptimizerInputs, int], tuple[Any, Any, Any]] | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """``ask``, never returning a θ that decodes to an abandoned trial's schedule (nor two
-    equal schedules in one batch): such θ are handed back to the optimiser as pending and
+    """``ask`` (or ``ask_once(inputs, n)``: the server's, in a compute process), never
+    returning a θ that decodes to an abandoned trial's schedule (nor two equal schedules in
+    one batch): such θ are handed back to the optimiser as pending and
     it is asked again; after 3 rounds a seeded random θ with a new schedule takes the place.
     """
+    if ask_once is None:
+
+        def ask_once(inp: OptimizerInputs, k: int) -> tuple[Any, Any, Any]:
+            return ask(inp, k, timings=timings)
+
     if not inputs.refused_hashes:
-        return ask(inputs, n, timings=timings)
+        return ask_once(inputs, n)
 
     def key(theta: np.ndarray) -> str:
         d = policy.decode(theta)
@@ -377,7 +397,7 @@ def ask_avoiding_refused(
         if extra:
             more = np.asarray(extra, dtype=np.float64).reshape(-1, inputs.dim)
             pend = more if pend is None else np.concatenate([pend, more])
-        thetas, mean, std = ask(replace(inputs, pending=pend), n, timings=timings)
+        thetas, mean, std = ask_once(replace(inputs, pending=pend), n)
         seen = set(inputs.refused_hashes)
         bad = []
         for i, th in enumerate(thetas):
@@ -388,7 +408,7 @@ def ask_avoiding_refused(
         if not bad:
             return thetas, mean, std
         extra.extend(thetas[i] for i in bad)
-    rng = np.random.default_rng([inputs.seed, len(inputs.observations), len(extra)])
+    rng = np.random.default_rng([inputs.spec.seed, len(inputs.observations), len(extra)])
     for i in bad:
         for _ in range(10_000):
             th = rng.random(inputs.dim)
@@ -409,8 +429,12 @@ def suggest(
     actor: Actor,
     timings: dict[str, float] | None = None,
     ceilings: HardwareCeilings | None = None,
+    asker: Callable[[OptimizerInputs, int], tuple[Any, Any, Any, float]] | None = None,
 ) -> list[TrialRead]:
     """Ask the optimiser for ``n`` trials given the completed and pending ones; store them.
+
+    ``asker(inputs, n) -> (thetas, mean, std, optimizer_s)`` runs the optimiser (the server
+    passes ``ComputeRunner``'s, bounded in time); by default ``ask`` in this thread.
 
     The optimiser runs outside the write lock (a GP fit takes seconds; workers keep
     reporting meanwhile). Before storing, the data is compared with what the optimiser saw:
@@ -423,7 +447,16 @@ def suggest(
             _check_can_add(s, exp, n)
             inputs = optimizer_inputs(s, exp)
             policy = policy_of(exp)
-        thetas, mean, std = ask_avoiding_refused(inputs, policy, n, timings=timings)
+
+        def ask_once(inp: OptimizerInputs, k: int) -> tuple[Any, Any, Any]:
+            if asker is None:
+                return ask(inp, k, timings=timings)
+            thetas, mean, std, opt_s = asker(inp, k)
+            if timings is not None:
+                timings["optimizer_s"] = timings.get("optimizer_s", 0.0) + opt_s
+            return thetas, mean, std
+
+        thetas, mean, std = ask_avoiding_refused(inputs, policy, n, ask_once=ask_once)
         with db.write() as s:
             exp = get_experiment(s, experiment_id, for_update=True)
             now = optimizer_inputs(s, exp)
@@ -465,7 +498,7 @@ def attach(
     actor: Actor,
     ceilings: HardwareCeilings | None = None,
 ) -> TrialRead:
-    """Add a trial with an operator-chosen θ (checked like any other), committed."""
+    """Add a trial with an operator-chosen θ (checked like any other)."""
     exp = get_experiment(session, experiment_id, for_update=True)
     _check_can_add(session, exp, 1)
     predicted = None
@@ -481,7 +514,7 @@ def attach(
         ceilings=ceilings,
     )
     touch(exp)
-    session.commit()
+    session.flush()
     return TrialRead.build(trial, has_trajectory=False)
 
 
@@ -529,7 +562,7 @@ def _end_by_operator(
         _end_lease(session, trial, "revoked", actor=actor, why=f"trial {status}: {reason}")
     touch(trial.experiment)
     out = TrialRead.build(trial)
-    session.commit()
+    session.flush()
     return out
 
 
@@ -585,14 +618,14 @@ def resolve(session: Session, trial_id: int, body: ResolveIn, *, actor: Actor) -
     )
     touch(exp)
     out = TrialRead.build(trial)
-    session.commit()
+    session.flush()
     return out
 
 
 def check_previewed(session: Session, trial: Trial, current_hash: str, *, actor: Actor) -> None:
     """NotPreviewed unless ``actor`` ran a preview of exactly this schedule (hash) with the
     experiment's current command-hold setting."""
-    hold = hold_setting(trial.experiment)
+    hold = trial.experiment.command_hold
     previews = session.execute(
         select(Preview.schedule_hash, Preview.hold).where(
             Preview.trial_id == trial.id, Preview.previewed_by == actor.username
@@ -659,5 +692,5 @@ def confirm(
     )
     touch(exp)
     out = TrialRead.build(trial)
-    session.commit()
+    session.flush()
     return out

@@ -3,6 +3,7 @@
 >>> from app.sim import rollout
 >>> res = rollout("tip_speed", schedule_pa)          # schedule_pa: (H, 12) Pa
 >>> res.objective, res.max_tip_speed, res.trajectory.tip_pos_m.shape
+>>> rollout("throw", schedule_pa, release_step=4, command_hold="linear", objective_rule="published")
 """
 
 from app.sim.batch import RolloutPool, rollout_batch
@@ -17,9 +18,21 @@ from app.sim.params import (
     LinkParams,
 )
 from app.sim.presets import PRESETS, Preset
-from app.sim.rollout import RolloutResult, SimulationDiverged, Trajectory, rollout
+from app.sim.rollout import (
+    COMMAND_HOLDS,
+    OBJECTIVE_RULES,
+    RolloutResult,
+    SimulationDiverged,
+    Trajectory,
+    check_command_hold,
+    check_objective_rule,
+    check_rollout,
+    rollout,
+)
 
 __all__ = [
+    "COMMAND_HOLDS",
+    "OBJECTIVE_RULES",
     "PRESETS",
     "TASKS",
     "ArmParams",
@@ -36,6 +49,9 @@ __all__ = [
     "Trajectory",
     "build_model",
     "build_spec",
+    "check_command_hold",
+    "check_objective_rule",
+    "check_rollout",
     "export_xml",
     "rollout",
     "rollout_batch",

@@ -16,6 +16,8 @@ from app.sim.rollout import (
     RolloutResult,
     SimulationDiverged,
     _check_inputs,
+    check_command_hold,
+    check_objective_rule,
     compiled_model,
     rollout,
 )
@@ -57,9 +59,10 @@ def default_workers() -> int:
 
 
 class RolloutPool:
-    """A reusable pool of worker processes for one (task, preset, params).
+    """A reusable pool of worker processes for one (task, preset, params, hold, rule).
 
-    Use as a context manager; ``map`` yields results in input order.
+    Use as a context manager; ``map`` yields results in input order. ``command_hold`` and
+    ``objective_rule`` are as in ``rollout``.
     """
 
     def __init__(
@@ -71,17 +74,24 @@ class RolloutPool:
         n_workers: int | None = None,
         record_hz: float = 100.0,
         record_qpos: bool = False,
+        command_hold: str = "zero",
+        objective_rule: str = "paper",
     ) -> None:
         self.task = task
         self.preset = get_preset(preset)
+        self.command_hold = check_command_hold(command_hold)
+        self.objective_rule = check_objective_rule(objective_rule)
         self.n_workers = default_workers() if n_workers is None else int(n_workers)
         if self.n_workers < 1:
             raise ValueError(f"n_workers must be ≥ 1, got {n_workers}")
-        rec_q = record_qpos
+        kwargs = {
+            "record_hz": record_hz,
+            "record_qpos": record_qpos,
+            "command_hold": self.command_hold,
+            "objective_rule": self.objective_rule,
+        }
         self._executor = process_pool(
-            self.n_workers,
-            _init_worker,
-            (task, self.preset, params, {"record_hz": record_hz, "record_qpos": rec_q}),
+            self.n_workers, _init_worker, (task, self.preset, params, kwargs)
         )
 
     def warm_up(self) -> None:
@@ -123,10 +133,13 @@ def rollout_batch(
     params: ArmParams | None = None,
     record_hz: float = 100.0,
     record_qpos: bool = False,
+    command_hold: str = "zero",
+    objective_rule: str = "paper",
 ) -> list[RolloutResult]:
     """Run N episodes, (N, H, 12) schedules in Pa, on ``n_workers`` processes (default: all cores).
 
-    ``release_steps`` (N,) is required for throw. Results come back in input order. With one
+    ``release_steps`` (N,) is required for throw; ``command_hold`` and ``objective_rule`` are
+    as in ``rollout``. Results come back in input order. With one
     worker (or one episode) everything runs in this process. A diverged episode raises
     SimulationDiverged naming its index.
     """
@@ -142,6 +155,8 @@ def rollout_batch(
     if workers < 1:
         raise ValueError(f"n_workers must be ≥ 1, got {n_workers}")
     # Validate every input here, before any process starts (one clear error, nothing half-run).
+    check_command_hold(command_hold)
+    check_objective_rule(objective_rule)
     for i, (s, r) in enumerate(zip(sched_list, releases, strict=True)):
         try:
             _check_inputs(task, s, r, effective_params(preset, params))
@@ -163,6 +178,8 @@ def rollout_batch(
                             params=params,
                             record_hz=record_hz,
                             record_qpos=record_qpos,
+                            command_hold=command_hold,
+                            objective_rule=objective_rule,
                         )
                     )
                 except SimulationDiverged as exc:
@@ -178,6 +195,8 @@ def rollout_batch(
                 n_workers=workers,
                 record_hz=record_hz,
                 record_qpos=record_qpos,
+                command_hold=command_hold,
+                objective_rule=objective_rule,
             ) as pool:
                 for res in pool.map(sched_list, releases):
                     results.append(res)

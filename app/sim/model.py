@@ -7,9 +7,14 @@ disk with a velocimeter. Per joint, fixed tendons sum its x and its y hinges; ea
 two cylinder actuators of opposite gear. Actuator order = chamber order: joint 0 (x+, x−, y+,
 y−), joint 1, joint 2.
 
-Tasks add their scene: ``throw`` a gripper and a welded 0.25 kg cube (weld ``grip``), ``hammer``
-a 2 kg ball and a force plate with a touch sensor, ``tip_speed`` nothing (the bare arm, as on
-the real robot).
+Tasks add their scene: ``throw`` a gripper and a 0.25 kg cube, ``hammer`` a 2 kg ball and a
+force plate with a touch sensor, ``tip_speed`` nothing (the bare arm, as on the real robot).
+
+The throw's grasp (``GripperParams.grasp``): ``"friction"`` builds two sliding fingers whose pads
+(friction 0.7 / 0.6) squeeze the free cube, driven by one more actuator (``gripper``, after the
+12 chambers; command 0 = open, any command ≥ ``GRIP_CLOSED_FROM`` = closed, finger force limited
+to ±``pad_force_n``), with touch sensors on the pads and the published model's ``impratio``
+10 and 5 no-slip iterations; ``"weld"`` welds the cube to the palm (equality ``grip``) instead.
 """
 
 from __future__ import annotations
@@ -21,13 +26,19 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from app.policy import TASKS
 from app.sim.params import ArmParams, LinkParams
 from app.sim.presets import Preset, get_preset
 
-TASKS: tuple[str, ...] = ("throw", "hammer", "tip_speed")
-
 EEF_SITE = "eef"
 GRIP_WELD = "grip"
+GRIP_ACTUATOR = "gripper"
+GRIP_TENDON = "grip"
+PAD_SENSORS = ("left_pad_touch", "right_pad_touch")
+CUBE_ORIGIN_SENSOR = "cube_origin_pos"
+CUBE_CENTRE_SITE = "cube_centre"
+# The published gripper's command: 255 of a 275,800 full scale closes it fully.
+GRIP_CLOSED_FROM = 255.0 / 275800.0
 CUBE_BODY = "cube"
 HAMMER_BODY = "hammer"
 GRIPPER_BODY = "gripper"
@@ -255,14 +266,16 @@ def _build_arm(spec: mujoco.MjSpec, params: ArmParams, coll: _Collision) -> mujo
     return last
 
 
-def _add_object_sensors(spec: mujoco.MjSpec, body: str) -> None:
-    """World-frame position and linear velocity of a task object's centre."""
+def _add_object_sensors(
+    spec: mujoco.MjSpec, name: str, objtype: mujoco.mjtObj = mujoco.mjtObj.mjOBJ_XBODY
+) -> None:
+    """World-frame position and linear velocity of a task object's centre (a body or site)."""
     sens = mujoco.mjtSensor
     for sname, stype in (
         (OBJECT_POS_SENSOR, sens.mjSENS_FRAMEPOS),
         (OBJECT_LINVEL_SENSOR, sens.mjSENS_FRAMELINVEL),
     ):
-        spec.add_sensor(name=sname, type=stype, objtype=mujoco.mjtObj.mjOBJ_XBODY, objname=body)
+        spec.add_sensor(name=sname, type=stype, objtype=objtype, objname=name)
 
 
 def _add_world(spec: mujoco.MjSpec, coll: _Collision) -> None:
@@ -296,20 +309,29 @@ def _add_world(spec: mujoco.MjSpec, coll: _Collision) -> None:
 
 
 def _add_gripper(tip: mujoco.MjsBody, params: ArmParams, coll: _Collision) -> mujoco.MjsBody:
-    """A lumped two-finger gripper at the end-effector site (frame = the site's frame)."""
+    """The two-finger gripper at the end-effector site (frame = the site's frame).
+
+    Weld grasp: palm and fingers lumped in one rigid body. Friction grasp: the palm, and two
+    fingers on slide joints (closing towards the tip axis, kept symmetric by an equality) with
+    two pad boxes each facing the cube.
+    """
     gp = params.gripper
     site_z = params.eef_offset_disk_heights * params.disk_height_m
     body = tip.add_body(name=GRIPPER_BODY, pos=[0.0, 0.0, site_z])
-    m = gp.mass_kg
-    com = (gp.palm_mass_kg * gp.palm_com_m + gp.finger_mass_kg * gp.finger_com_m) / m
-    palm = _cylinder_inertia(gp.palm_mass_kg, gp.palm_radius_m, gp.palm_length_m)
-    half_sep = gp.finger_separation_m / 2.0
-    # Parallel-axis sums about the combined centre of mass (fingers as two point masses).
-    dp, df = gp.palm_com_m - com, gp.finger_com_m - com
-    ixx = palm[0] + gp.palm_mass_kg * dp**2 + gp.finger_mass_kg * (df**2 + half_sep**2)
-    iyy = palm[1] + gp.palm_mass_kg * dp**2 + gp.finger_mass_kg * df**2
-    izz = palm[2] + gp.finger_mass_kg * half_sep**2
-    _set_inertial(body, m, (0.0, 0.0, com), [ixx, iyy, izz])
+    if gp.grasp == "weld":
+        m = gp.mass_kg
+        com = (gp.palm_mass_kg * gp.palm_com_m + gp.finger_mass_kg * gp.finger_com_m) / m
+        palm = _cylinder_inertia(gp.palm_mass_kg, gp.palm_radius_m, gp.palm_length_m)
+        half_sep = gp.finger_separation_m / 2.0
+        # Parallel-axis sums about the combined centre of mass (fingers as two point masses).
+        dp, df = gp.palm_com_m - com, gp.finger_com_m - com
+        ixx = palm[0] + gp.palm_mass_kg * dp**2 + gp.finger_mass_kg * (df**2 + half_sep**2)
+        iyy = palm[1] + gp.palm_mass_kg * dp**2 + gp.finger_mass_kg * df**2
+        izz = palm[2] + gp.finger_mass_kg * half_sep**2
+        _set_inertial(body, m, (0.0, 0.0, com), [ixx, iyy, izz])
+    else:
+        inertia = _cylinder_inertia(gp.palm_mass_kg, gp.palm_radius_m, gp.palm_length_m)
+        _set_inertial(body, gp.palm_mass_kg, (0.0, 0.0, gp.palm_com_m), inertia)
     _geom(
         body,
         "palm",
@@ -320,39 +342,162 @@ def _add_gripper(tip: mujoco.MjsBody, params: ArmParams, coll: _Collision) -> mu
         pos=[0.0, 0.0, gp.palm_length_m / 2.0],
     )
     finger_len = 2.0 * (gp.finger_com_m - gp.palm_length_m)
-    for side, x in (("left", -half_sep), ("right", half_sep)):
+    if gp.grasp == "weld":
+        half_sep = gp.finger_separation_m / 2.0
+        for side, x in (("left", -half_sep), ("right", half_sep)):
+            _geom(
+                body,
+                f"{side}_finger",
+                mujoco.mjtGeom.mjGEOM_BOX,
+                [0.008, 0.012, finger_len / 2.0],
+                (0.3, 0.3, 0.3, 1.0),
+                coll.none,
+                pos=[x, 0.0, gp.palm_length_m + finger_len / 2.0],
+            )
+        return body
+    _add_fingers(body, params, finger_len)
+    return body
+
+
+PAD_HALF = (0.004, 0.011, 0.009375)  # a pad box's half sizes: thickness, width, length (m)
+
+
+def _add_fingers(palm: mujoco.MjsBody, params: ArmParams, finger_len: float) -> None:
+    gp, cp = params.gripper, params.cube
+    finger_mass = gp.finger_mass_kg / 2.0
+    # the pads' faces start pad_gap_m from the cube's faces; pad 1 (outer) is centred on the
+    # cube's body origin, pad 2 lies next to it towards the palm
+    origin_z = cp.hold_offset_m - cp.origin_offset_m
+    pad_x = cp.side_m / 2.0 + gp.pad_gap_m + PAD_HALF[0]
+    # armature so that force / (mass + armature) covers the gap in close_time_s
+    eff_mass = gp.pad_force_n * gp.close_time_s**2 / (2.0 * gp.pad_gap_m)
+    armature = max(eff_mass - finger_mass, 0.0)
+    for side, sign in (("left", -1.0), ("right", 1.0)):
+        finger = palm.add_body(name=f"{side}_finger", pos=[sign * pad_x, 0.0, 0.0])
+        finger.add_joint(
+            name=finger_joint_name(side),
+            type=mujoco.mjtJoint.mjJNT_SLIDE,
+            axis=[-sign, 0.0, 0.0],  # + closes
+            range=[0.0, gp.pad_gap_m + cp.side_m / 2.0],
+            limited=mujoco.mjtLimited.mjLIMITED_TRUE,
+            armature=armature,
+            damping=0.1,
+        )
+        _set_inertial(finger, finger_mass, (0.0, 0.0, gp.finger_com_m), [1e-5, 1e-5, 1e-6])
         _geom(
-            body,
+            finger,
             f"{side}_finger",
             mujoco.mjtGeom.mjGEOM_BOX,
             [0.008, 0.012, finger_len / 2.0],
             (0.3, 0.3, 0.3, 1.0),
-            coll.none,
-            pos=[x, 0.0, gp.palm_length_m + finger_len / 2.0],
+            (0, 0),
+            pos=[sign * 0.012, 0.0, gp.palm_length_m + finger_len / 2.0],
         )
-    return body
+        for k, (z, mu) in enumerate(
+            ((origin_z, gp.pad_friction[0]), (origin_z - 2.0 * PAD_HALF[2], gp.pad_friction[1]))
+        ):
+            pad = _geom(
+                finger,
+                f"{side}_pad{k + 1}",
+                mujoco.mjtGeom.mjGEOM_BOX,
+                list(PAD_HALF),
+                (0.55, 0.55, 0.55, 1.0),
+                (4, 0),  # touches only the cube
+                pos=[0.0, 0.0, z],
+            )
+            pad.friction = [mu, 0.005, 0.0001]
+            pad.priority = 1
+            pad.solref = list(gp.pad_solref)
+            pad.solimp = [*gp.pad_solimp, 0.5, 2.0]
+        finger.add_site(
+            name=f"{side}_pad_site",
+            pos=[0.0, 0.0, origin_z - PAD_HALF[2]],
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            size=[PAD_HALF[0] + 0.002, PAD_HALF[1] + 0.002, 2.0 * PAD_HALF[2] + 0.002],
+            rgba=[0.0, 1.0, 0.0, 0.0],
+        )
+
+
+def finger_joint_name(side: str) -> str:
+    """The slide joint of the ``"left"`` or ``"right"`` finger (friction grasp)."""
+    return f"{side}_finger_slide"
+
+
+def _add_grip_drive(spec: mujoco.MjSpec, params: ArmParams) -> None:
+    """The friction grasp's drive: one actuator on both fingers, their coupling, pad sensors."""
+    gp = params.gripper
+    tendon = spec.add_tendon(name=GRIP_TENDON)
+    for side in ("left", "right"):
+        tendon.wrap_joint(finger_joint_name(side), 1.0)
+    spec.add_equality(
+        name="finger_sync",
+        type=mujoco.mjtEq.mjEQ_JOINT,
+        name1=finger_joint_name("left"),
+        name2=finger_joint_name("right"),
+    )
+    # force = F·(2·ctrl / GRIP_CLOSED_FROM − 1), clipped to ±F: −F (opening) at 0, +F
+    # (closing) from GRIP_CLOSED_FROM on; each finger gets the tendon's force.
+    act = spec.add_actuator(
+        name=GRIP_ACTUATOR, trntype=mujoco.mjtTrn.mjTRN_TENDON, target=GRIP_TENDON
+    )
+    f = gp.pad_force_n
+    act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
+    act.biastype = mujoco.mjtBias.mjBIAS_AFFINE
+    act.gainprm = [2.0 * f / GRIP_CLOSED_FROM] + [0.0] * (len(act.gainprm) - 1)
+    act.biasprm = [-f] + [0.0] * (len(act.biasprm) - 1)
+    act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+    act.ctrlrange = [0.0, 1.0]
+    act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+    act.forcerange = [-f, f]
+    for sensor, side in zip(PAD_SENSORS, ("left", "right"), strict=True):
+        spec.add_sensor(
+            name=sensor,
+            type=mujoco.mjtSensor.mjSENS_TOUCH,
+            objtype=mujoco.mjtObj.mjOBJ_SITE,
+            objname=f"{side}_pad_site",
+        )
+    spec.option.impratio = gp.impratio
+    spec.option.noslip_iterations = int(gp.noslip_iterations)
 
 
 def _add_cube(
     spec: mujoco.MjSpec, params: ArmParams, pos: np.ndarray, quat: np.ndarray, coll: _Collision
 ) -> None:
+    """The cube, its body origin ``origin_offset_m`` from the box centre towards the palm."""
     cp = params.cube
     body = spec.worldbody.add_body(name=CUBE_BODY, pos=pos.tolist(), quat=quat.tolist())
     body.add_freejoint(name="cube_free")
     half = cp.side_m / 2.0
     i = cp.mass_kg * cp.side_m**2 / 6.0
-    _set_inertial(body, cp.mass_kg, (0.0, 0.0, 0.0), [i, i, i])
-    _geom(body, CUBE_BODY, mujoco.mjtGeom.mjGEOM_BOX, [half] * 3, (0.2, 0.7, 0.0, 1.0), coll.obj)
-    spec.add_exclude(bodyname1=GRIPPER_BODY, bodyname2=CUBE_BODY)
-    weld = spec.add_equality(
-        name=GRIP_WELD,
-        type=mujoco.mjtEq.mjEQ_WELD,
-        objtype=mujoco.mjtObj.mjOBJ_BODY,
-        name1=GRIPPER_BODY,
-        name2=CUBE_BODY,
+    centre = [0.0, 0.0, cp.origin_offset_m]
+    _set_inertial(body, cp.mass_kg, centre, [i, i, i])
+    _geom(
+        body,
+        CUBE_BODY,
+        mujoco.mjtGeom.mjGEOM_BOX,
+        [half] * 3,
+        (0.2, 0.7, 0.0, 1.0),
+        (coll.obj[0], coll.obj[1] | 4),  # the pads touch it
+        pos=centre,
     )
-    # anchor, relpos, relquat = 0 (take the relative pose from qpos0), torquescale = 1
-    weld.data = [0.0] * 10 + [1.0] + [0.0] * (len(weld.data) - 11)
+    body.add_site(name=CUBE_CENTRE_SITE, pos=centre, size=[0.005, 0.0, 0.0])
+    spec.add_exclude(bodyname1=GRIPPER_BODY, bodyname2=CUBE_BODY)
+    if params.gripper.grasp == "weld":
+        weld = spec.add_equality(
+            name=GRIP_WELD,
+            type=mujoco.mjtEq.mjEQ_WELD,
+            objtype=mujoco.mjtObj.mjOBJ_BODY,
+            name1=GRIPPER_BODY,
+            name2=CUBE_BODY,
+        )
+        # anchor, relpos, relquat = 0 (take the relative pose from qpos0), torquescale = 1
+        weld.data = [0.0] * 10 + [1.0] + [0.0] * (len(weld.data) - 11)
+    spec.add_sensor(
+        name=CUBE_ORIGIN_SENSOR,
+        type=mujoco.mjtSensor.mjSENS_FRAMEPOS,
+        objtype=mujoco.mjtObj.mjOBJ_XBODY,
+        objname=CUBE_BODY,
+    )
 
 
 def _add_hammer(tip: mujoco.MjsBody, params: ArmParams, coll: _Collision) -> None:
@@ -401,13 +546,15 @@ def _add_plate(spec: mujoco.MjSpec, params: ArmParams, coll: _Collision) -> None
 
 
 def effective_params(preset: str | Preset, params: ArmParams | None) -> ArmParams:
-    """The ArmParams a preset actually builds (a preset may fix the disk count)."""
+    """The ArmParams a preset actually builds (a preset may fix the disk count and the grasp)."""
     p = get_preset(preset)
     params = params if params is not None else ArmParams()
     if not isinstance(params, ArmParams):
         raise ValueError(f"params must be an ArmParams, got {type(params).__name__}")
     if p.n_disks is not None and p.n_disks != params.n_disks:
         params = replace(params, n_disks=p.n_disks)
+    if p.grasp is not None and p.grasp != params.gripper.grasp:
+        params = replace(params, gripper=replace(params.gripper, grasp=p.grasp))
     return params
 
 
@@ -443,11 +590,14 @@ def build_spec(
         mujoco.mj_kinematics(model, data)
         sid = model.site(EEF_SITE).id
         rot = data.site_xmat[sid].reshape(3, 3)
-        pos = data.site_xpos[sid] + rot @ np.array([0.0, 0.0, params.cube.hold_offset_m])
+        origin = params.cube.hold_offset_m - params.cube.origin_offset_m
+        pos = data.site_xpos[sid] + rot @ np.array([0.0, 0.0, origin])
         quat = np.zeros(4)
         mujoco.mju_mat2Quat(quat, rot.ravel())
         _add_cube(spec, params, pos, quat, coll)
-        _add_object_sensors(spec, CUBE_BODY)
+        _add_object_sensors(spec, CUBE_CENTRE_SITE, mujoco.mjtObj.mjOBJ_SITE)
+        if params.gripper.grasp == "friction":
+            _add_grip_drive(spec, params)
     return spec
 
 

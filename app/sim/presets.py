@@ -23,6 +23,9 @@ class Preset:
         jacobian: "dense", "sparse" or "auto".
         n_disks: disks per continuum joint, or None to take ``ArmParams.n_disks``.
         arm_self_collision: whether arm parts (disks, links) collide with one another.
+        grasp: the throw's grasp ("friction" or "weld"), or None to take
+            ``GripperParams.grasp``. The friction grasp needs small steps: at 5 ms its stiff
+            pad contacts fling or drop the cube (docs/bench/paper.md), so ``fast`` welds.
     """
 
     name: str
@@ -36,6 +39,7 @@ class Preset:
     jacobian: str
     n_disks: int | None = None
     arm_self_collision: bool = True
+    grasp: str | None = None
 
     def apply(self, option: mujoco.MjOption | object) -> None:
         """Write these options onto a spec's or model's ``option``."""
@@ -77,7 +81,8 @@ REFERENCE = Preset(
 )
 
 # Same arm (10 disks: fewer disks change the geometry), a 5x larger step with implicitfast, a
-# loose solver, and no arm-on-arm contacts (the floor, plate and objects still collide).
+# loose solver, and no arm-on-arm contacts (the floor, plate and objects still collide); the
+# cube is welded (the friction grasp needs the reference step).
 # Checked against REFERENCE by `handful bench sim` (docs/bench/sim.md).
 FAST = Preset(
     name="fast",
@@ -90,6 +95,7 @@ FAST = Preset(
     cone="pyramidal",
     jacobian="dense",
     arm_self_collision=False,
+    grasp="weld",
 )
 
 PRESETS: dict[str, Preset] = {p.name: p for p in (REFERENCE, FAST)}

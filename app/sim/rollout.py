@@ -6,17 +6,42 @@ Stepping happens in C: ``mujoco.mj_step(model, data, nstep=k)`` runs between sam
 position and velocity) describe the state exactly at each point; Python only copies arrays
 there. The dynamics are the same whatever ``record_hz`` is.
 
-Objectives (ROBOT.md), with H control steps of 5 s / H each:
+**Command hold** (``command_hold``), how row t of the schedule is applied during control step t
+(ROBOT.md, "The published simulator, exactly"):
 
-* ``throw``: Σ_{t=1}^{t_R} ‖tip velocity at the end of step t‖ + ‖cube centre‖ at 5 s (the
-  cube's distance from the robot base's footprint centre, the world origin). The weld holding
-  the cube is switched off at the end of step ``release_step`` (1-based).
-* ``hammer``: (Σ_{t=1}^{H} m·|ż_t| + F_t − 1[t ≥ 0.7H]·‖x_t − g‖) / 1000, with ż_t and x_t the
-  ball centre's vertical velocity and position at the end of step t, m the ball mass, g the
-  plate centre, and F_t the plate's touch reading **at the end of step t** (the normal contact
-  force inside the plate's sensor volume during the last physics step of control step t), as
-  in the published code. Impacts between step ends do not count; pressing at a step's end does.
-* ``tip_speed``: the largest tip speed on the 100 Hz grid (every 10 ms) over the 5 s.
+* ``"zero"``: held for the whole step, from t = 0 (row 1 from the first physics step).
+* ``"linear"``: ramped linearly from the previous row to row t over the step's physics steps
+  (the first physics step repeats the previous command, the last applies row t), starting
+  from all-zero pressures and an open gripper at reset; row t is reached only at the step's end.
+  Python sets the command before each physics step (``mj_step`` one step at a time).
+
+The throw's gripper command is part of the command vector: closed for steps 1..t_R, open
+after, ramped like the chambers under ``"linear"``. Any command above ``GRIP_CLOSED_FROM`` of
+full scale is fully closed, so under ``"linear"`` the gripper closes from the second physics
+step and opens only in the last physics step of step t_R + 1 (never for t_R = H), as in the
+published simulator. Under ``"zero"`` it opens at the end of step t_R.
+
+**Objectives** (``objective_rule``), with H control steps of 5 s / H each, all read at the
+control steps' ends:
+
+* ``"paper"``, the formulas as printed:
+  ``throw``: Σ_{t=1}^{t_R} ‖tip velocity_t‖ + ‖cube centre‖ at 5 s (the cube's distance from
+  the robot base's footprint centre, the world origin). ``hammer``: (Σ_{t=1}^{H} m·|ż_t| + F_t −
+  1[t ≥ 0.7H]·‖x_t − g‖) / 1000, with ż_t and x_t the ball centre's world-vertical velocity and
+  position, m the ball mass, g the plate centre, and F_t the plate's touch reading at the end of
+  step t (the normal contact force inside the plate's sensor volume during the last physics step
+  of control step t), as in the published code: impacts between step ends do not count.
+* ``"published"``, what the published code computes with its release time set to 0.5·t_R s
+  (its float-time quirks reproduced by step index): ``throw``: the tip speeds of steps
+  1..t_R − 1, plus step t_R itself when 3 ≤ t_R ≤ H − 1, never step H's, plus the distance of
+  the cube's body origin (``CubeParams.origin_offset_m`` from its centre, towards the palm) from
+  the world origin. ``hammer``: per step (m·|v_z| + F − d) / 1000 with v_z the tip velocimeter's
+  z component in the tip's own frame, d the distance from the plate centre to the tip site
+  (not the ball), counted for steps t > 0.7H (steps 8..10 of 10).
+* ``tip_speed`` (both rules): the largest tip speed on the 100 Hz grid (every 10 ms) over 5 s.
+
+Both rules are computed for every episode (``RolloutResult.objective_by_rule``); ``objective``
+is the chosen one's.
 """
 
 from __future__ import annotations
@@ -31,15 +56,19 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from app.policy import EPISODE_S, PolicyError, check_schedule
+from app.policy import EPISODE_S, RELEASE_TASKS, PolicyError, check_release_step, check_schedule
 from app.sim.model import (
     CUBE_BODY,
+    CUBE_ORIGIN_SENSOR,
     EEF_LINVEL_SENSOR,
     EEF_POS_SENSOR,
+    EEF_VEL_SENSOR,
+    GRIP_ACTUATOR,
     GRIP_WELD,
     HAMMER_BODY,
     OBJECT_LINVEL_SENSOR,
     OBJECT_POS_SENSOR,
+    PAD_SENSORS,
     PLATE_SENSOR,
     build_model,
     check_task,
@@ -52,6 +81,27 @@ from app.sim.presets import Preset, get_preset
 OBJECTIVE_HZ = 100.0  # the tip-speed grid of `max_tip_speed` and `tip_speed_100hz`
 BEND_LIMIT_FRACTION = 0.995  # a hinge within 0.5 % of its range end counts as at its limit
 MAX_PLAUSIBLE_SPEED_M_S = 1000.0
+
+COMMAND_HOLDS: tuple[str, ...] = ("zero", "linear")
+OBJECTIVE_RULES: tuple[str, ...] = ("paper", "published")
+
+
+def check_command_hold(command_hold: object) -> str:
+    """``command_hold`` if known; ValueError naming the choices otherwise."""
+    if command_hold not in COMMAND_HOLDS:
+        raise ValueError(
+            f"unknown command hold {command_hold!r}; choose one of {', '.join(COMMAND_HOLDS)}"
+        )
+    return str(command_hold)
+
+
+def check_objective_rule(objective_rule: object) -> str:
+    """``objective_rule`` if known; ValueError naming the choices otherwise."""
+    if objective_rule not in OBJECTIVE_RULES:
+        raise ValueError(
+            f"unknown objective rule {objective_rule!r}; choose one of {', '.join(OBJECTIVE_RULES)}"
+        )
+    return str(objective_rule)
 
 
 class SimulationDiverged(RuntimeError):
@@ -148,6 +198,13 @@ class RolloutResult:
         peak_plate_force_n: largest plate reading at any sample (hammer), else 0.
         objective_terms: the objective's parts (per task), for inspection.
         trajectory: the recorded trajectory.
+        command_hold: how each row was applied ("zero" or "linear").
+        objective_rule: which scoring rule ``objective`` follows ("paper" or "published").
+        objective_by_rule: the objective under every rule, same episode.
+        cube_lost_before_release: throw with the friction grasp: whether the pads lost the
+            cube before the release step's end (it slipped out); False with the weld; else None.
+        last_pad_contact_s: throw, friction grasp: last 100 Hz sample with a pad touching the
+            cube (s); None when it never touched or without pads.
     """
 
     task: str
@@ -163,6 +220,11 @@ class RolloutResult:
     trajectory: Trajectory
     timestep_s: float = 0.0
     n_disks: int = 0
+    command_hold: str = "zero"
+    objective_rule: str = "paper"
+    objective_by_rule: dict[str, float] = field(default_factory=dict)
+    cube_lost_before_release: bool | None = None
+    last_pad_contact_s: float | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     def to_summary(self) -> dict[str, Any]:
@@ -171,7 +233,10 @@ class RolloutResult:
         return {
             "task": self.task,
             "preset": self.preset,
+            "command_hold": self.command_hold,
+            "objective_rule": self.objective_rule,
             "objective": float(self.objective),
+            "objective_by_rule": {k: float(v) for k, v in self.objective_by_rule.items()},
             "max_tip_speed": float(self.max_tip_speed),
             "tip_speed_100hz": [round(float(v), 6) for v in self.tip_speed_100hz],
             "wall_s": float(self.wall_s),
@@ -183,6 +248,8 @@ class RolloutResult:
             "objective_terms": {k: float(v) for k, v in self.objective_terms.items()},
             "timestep_s": self.timestep_s,
             "n_disks": self.n_disks,
+            "cube_lost_before_release": self.cube_lost_before_release,
+            "last_pad_contact_s": self.last_pad_contact_s,
         }
 
 
@@ -198,6 +265,10 @@ class _Layout:
 
     eef_pos: int
     eef_linvel: int
+    eef_vel_local: int
+    cube_origin: int
+    pads: tuple[int, ...]
+    grip_actuator: int
     object_pos: int
     object_linvel: int
     plate: int
@@ -226,10 +297,14 @@ def _layout(model: mujoco.MjModel, task: str, params: ArmParams) -> _Layout:
     return _Layout(
         eef_pos=_sensor_adr(model, EEF_POS_SENSOR),
         eef_linvel=_sensor_adr(model, EEF_LINVEL_SENSOR),
+        eef_vel_local=_sensor_adr(model, EEF_VEL_SENSOR),
+        cube_origin=_sensor_adr(model, CUBE_ORIGIN_SENSOR),
+        pads=tuple(a for a in (_sensor_adr(model, n) for n in PAD_SENSORS) if a >= 0),
+        grip_actuator=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, GRIP_ACTUATOR),
         object_pos=_sensor_adr(model, OBJECT_POS_SENSOR),
         object_linvel=_sensor_adr(model, OBJECT_LINVEL_SENSOR),
         plate=_sensor_adr(model, PLATE_SENSOR),
-        weld=model.equality(GRIP_WELD).id if task == "throw" else -1,
+        weld=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_EQUALITY, GRIP_WELD),
         hinge_qposadr=adr,
         hinge_limit=lim,
         object_mass_kg=float(model.body(obj_body).mass[0]) if obj_body else 0.0,
@@ -251,20 +326,16 @@ def _check_inputs(
         sched = check_schedule(schedule, lower_pa=0.0, upper_pa=params.max_pressure_pa)
     except PolicyError as exc:
         raise ValueError(str(exc)) from exc
-    horizon = sched.shape[0]
-    if task == "throw":
-        if release_step is None:
-            raise ValueError(f"throw needs release_step in 1..{horizon}")
-        if isinstance(release_step, bool) or not isinstance(release_step, int | np.integer):
-            raise ValueError(
-                f"release_step must be an integer in 1..{horizon}, got {release_step!r}"
-            )
-        if not 1 <= int(release_step) <= horizon:
-            raise ValueError(f"release_step must be in 1..{horizon}, got {release_step}")
-        return sched, int(release_step)
-    if release_step is not None:
-        raise ValueError(f"release_step only applies to throw, not {task}")
-    return sched, None
+    try:
+        release = check_release_step(
+            release_step,
+            horizon=sched.shape[0],
+            with_release=task in RELEASE_TASKS,
+            owner=task,
+        )
+    except PolicyError as exc:
+        raise ValueError(str(exc)) from None
+    return sched, release
 
 
 def _diverged(task: str, preset: str, t: float, why: str) -> SimulationDiverged:
@@ -292,6 +363,27 @@ def _check_warnings(warn: Any, task: str, preset: str, t: float) -> None:
         raise _diverged(task, preset, t, f"MuJoCo found {what} (by this time)")
 
 
+def check_rollout(
+    task: str,
+    pressure_schedule_pa: Any,
+    *,
+    release_step: int | None = None,
+    preset: str | Preset = "reference",
+    params: ArmParams | None = None,
+) -> None:
+    """Raise ValueError for what ``rollout`` would refuse (task, schedule, release step, a
+    horizon whose control step is not a whole number of physics steps), without simulating."""
+    p = get_preset(preset)
+    params = effective_params(p, params)
+    schedule, _ = _check_inputs(task, pressure_schedule_pa, release_step, params)
+    dt = float(compiled_model(task, p, params).opt.timestep)
+    horizon = schedule.shape[0]
+    try:
+        _steps_for(EPISODE_S / horizon, dt, "a control step")
+    except ValueError as exc:
+        raise ValueError(f"horizon {horizon} cannot be simulated: {exc}") from None
+
+
 def rollout(
     task: str,
     pressure_schedule_pa: np.ndarray,
@@ -301,29 +393,60 @@ def rollout(
     record_hz: float = 100.0,
     params: ArmParams | None = None,
     record_qpos: bool = False,
+    command_hold: str = "zero",
+    objective_rule: str = "paper",
 ) -> RolloutResult:
     """Simulate one 5 s episode of ``task`` under an (H, 12) pressure schedule (Pa).
 
-    Row t of the schedule is commanded for 5 s / H from t·5/H; the arm starts at rest, straight,
-    with all chamber pressures zero. Deterministic: the same inputs give bit-identical results.
-    The trajectory is sampled every round(1 / (record_hz · timestep)) physics steps (at least
-    one), t = 0 included; the objective does not depend on ``record_hz``.
+    Row t of the schedule is commanded during control step t (5 s / H from t·5/H), held or
+    ramped as ``command_hold`` says (module docstring); the arm starts at rest, straight, with
+    all chamber pressures zero. ``objective_rule`` picks the scoring rule of ``objective``.
+    Deterministic: the same inputs give bit-identical results. The trajectory is sampled every
+    round(1 / (record_hz · timestep)) physics steps (at least one), t = 0 included; the
+    objective does not depend on ``record_hz``.
 
     Raises:
-        ValueError: unknown task/preset, a bad schedule (shape, non-finite, outside
-            [0, max pressure], naming step and chamber), or a bad release_step/record_hz.
+        ValueError: unknown task/preset/command hold/objective rule, a bad schedule (shape,
+            non-finite, outside [0, max pressure], naming step and chamber), or a bad
+            release_step/record_hz.
         SimulationDiverged: the physics became unstable (never returns NaN).
     """
     p = get_preset(preset)
     params = effective_params(p, params)
+    hold = check_command_hold(command_hold)
+    rule = check_objective_rule(objective_rule)
     schedule, release = _check_inputs(task, pressure_schedule_pa, release_step, params)
     if not (isinstance(record_hz, int | float) and math.isfinite(record_hz) and record_hz > 0):
         raise ValueError(f"record_hz must be a positive number, got {record_hz!r}")
     model = compiled_model(task, p, params)
     t0 = time.perf_counter()
-    out = _simulate(model, task, p, params, schedule, release, float(record_hz), record_qpos)
+    out = _simulate(
+        model, task, p, params, schedule, release, float(record_hz), record_qpos, hold, rule
+    )
     out.wall_s = time.perf_counter() - t0
     return out
+
+
+def command_rows(schedule: np.ndarray, release: int | None, grip: bool) -> np.ndarray:
+    """The (H, nu) command rows: the schedule, plus the gripper's (1 closed up to t_R, then 0)."""
+    if not grip:
+        return schedule
+    assert release is not None
+    closed = (np.arange(schedule.shape[0]) < release).astype(np.float64)
+    return np.column_stack([schedule, closed])
+
+
+def linear_commands(rows: np.ndarray, n_ctrl: int) -> np.ndarray:
+    """(H·n_ctrl, nu) per-physics-step commands of the ``"linear"`` hold.
+
+    Within control step c, physics step τ = 0..n_ctrl − 1 applies prev + (row_c − prev)·τ/(n_ctrl
+    − 1), prev being row c − 1 (all zeros before row 0).
+    """
+    horizon, nu = rows.shape
+    prev = np.vstack([np.zeros((1, nu)), rows[:-1]])
+    tau = np.arange(n_ctrl) / max(n_ctrl - 1, 1) if n_ctrl > 1 else np.ones(1)
+    out = prev[:, None, :] + (rows - prev)[:, None, :] * tau[None, :, None]
+    return out.reshape(horizon * n_ctrl, nu)
 
 
 def _simulate(
@@ -335,6 +458,8 @@ def _simulate(
     release: int | None,
     record_hz: float,
     record_qpos: bool,
+    hold: str,
+    rule: str,
 ) -> RolloutResult:
     dt = float(model.opt.timestep)
     horizon = schedule.shape[0]
@@ -349,6 +474,17 @@ def _simulate(
     )
     n_pts = len(points)
     lay = _layout(model, task, params)
+    has_grip = lay.grip_actuator >= 0
+    rows = command_rows(schedule, release, has_grip)
+    per_step = linear_commands(rows, n_ctrl) if hold == "linear" else None
+    # The weld (if any) lets go when the gripper command opens: at the end of step t_R when
+    # held; in the last physics step of step t_R + 1 when ramped (never for t_R = H).
+    weld_off = -1
+    if lay.weld >= 0 and release is not None:
+        if hold == "zero":
+            weld_off = release * n_ctrl if release < horizon else -1
+        elif release < horizon:
+            weld_off = (release + 1) * n_ctrl - 1
 
     data = mujoco.MjData(model)
     qpos = np.empty((n_pts, model.nq))
@@ -357,6 +493,7 @@ def _simulate(
     step, step1, step2 = mujoco.mj_step, mujoco.mj_step1, mujoco.mj_step2
     warn = data.warning
     name = p.name
+    ctrl = data.ctrl
 
     # mj_step1 computes position/velocity quantities and sensors of the current state; the
     # following mj_step2 finishes that physics step. So every sample reads the state exactly
@@ -364,13 +501,27 @@ def _simulate(
     # come from the last completed step).
     ctrl_points = {c * n_ctrl: c for c in range(horizon)}  # step k → control steps done
     gaps = np.diff(points, prepend=0).tolist()
-    data.ctrl[:] = schedule[0]
+    if per_step is None:
+        ctrl[:] = rows[0]
     step1(model, data)
     for idx, (k, gap) in enumerate(zip(points, gaps, strict=True)):
-        if gap:
+        if gap and per_step is None:
             step2(model, data)
             if gap > 1:
                 step(model, data, gap - 1)
+            step1(model, data)
+        elif gap:
+            first = k - gap
+            for kk in range(first, k):
+                ctrl[:] = per_step[kk]
+                if kk == weld_off:
+                    data.eq_active[lay.weld] = 0
+                    if kk == first:
+                        step1(model, data)  # rebuild the constraints without the weld
+                if kk == first:
+                    step2(model, data)
+                else:
+                    step(model, data)
             step1(model, data)
         qpos[idx] = data.qpos
         act[idx] = data.act
@@ -380,10 +531,11 @@ def _simulate(
             # MuJoCo counts unstable states (and resets them) rather than stopping: check
             # the counters once per control step, so a blow-up is caught within 5 s / H.
             _check_warnings(warn, task, name, k * dt)
-            data.ctrl[:] = schedule[done]
-            if release is not None and done == release:
-                data.eq_active[lay.weld] = 0
-                step1(model, data)  # rebuild the constraints without the weld
+            if per_step is None:
+                ctrl[:] = rows[done]
+                if k == weld_off:
+                    data.eq_active[lay.weld] = 0
+                    step1(model, data)  # rebuild the constraints without the weld
     _check_warnings(warn, task, name, n_total * dt)
 
     tip_pos = sensors[:, lay.eef_pos : lay.eef_pos + 3]
@@ -395,7 +547,6 @@ def _simulate(
         obj_pos = obj_vel = np.zeros((n_pts, 3))
     plate = sensors[:, lay.plate] if lay.plate >= 0 else np.zeros(n_pts)
 
-    # (A release at the end of the last step would change nothing within the episode.)
     for arr, what in ((qpos, "positions"), (sensors, "sensor readings"), (act, "pressures")):
         bad = ~np.isfinite(arr).all(axis=1)
         if bad.any():
@@ -410,28 +561,58 @@ def _simulate(
     ctrl_idx = np.flatnonzero(is_ctrl)  # ends of steps 1..H
     speed_grid = tip_speed[is_obj]
 
+    lost: bool | None = None
+    last_contact: float | None = None
     if task == "tip_speed":
         objective = float(speed_grid.max())
         terms = {"max_tip_speed": objective}
+        by_rule = dict.fromkeys(OBJECTIVE_RULES, objective)
     elif task == "throw":
         assert release is not None
-        speed_sum = float(tip_speed[ctrl_idx[:release]].sum())
-        distance = float(np.linalg.norm(obj_pos[-1]))
-        objective = speed_sum + distance
-        terms = {"tip_speed_sum": speed_sum, "cube_distance_m": distance}
+        by_rule, terms = _throw_objectives(
+            tip_speed[ctrl_idx],
+            obj_pos[-1],
+            sensors[-1, lay.cube_origin : lay.cube_origin + 3],
+            release,
+            rule,
+        )
+        if lay.pads:
+            touching = (sensors[:, list(lay.pads)] > 0.0).any(axis=1) & is_obj
+            hit = np.flatnonzero(touching)
+            last_contact = float(pts[hit[-1]] * dt) if hit.size else None
+            release_s = release * n_ctrl * dt
+            lost = last_contact is None or last_contact < release_s - 0.5 * dt
+        else:
+            lost = False
     else:
         g = np.asarray(params.plate.centre_m)
-        momentum = lay.object_mass_kg * np.abs(obj_vel[ctrl_idx, 2])
+        m = lay.object_mass_kg
         force = plate[ctrl_idx]
         steps = np.arange(1, horizon + 1)
         late = steps >= 0.7 * horizon - 1e-9
+        momentum = m * np.abs(obj_vel[ctrl_idx, 2])
         dist = np.where(late, np.linalg.norm(obj_pos[ctrl_idx] - g, axis=1), 0.0)
-        objective = float((momentum.sum() + force.sum() - dist.sum()) / 1000.0)
-        terms = {
-            "momentum_sum": float(momentum.sum()),
-            "force_sum_n": float(force.sum()),
-            "distance_sum_m": float(dist.sum()),
-        }
+        paper = (momentum.sum() + force.sum() - dist.sum()) / 1000.0
+        # published: the tip velocimeter's own z, the tip site's distance, steps t > 0.7H
+        vz_local = sensors[ctrl_idx, lay.eef_vel_local + 2]
+        pub_late = steps > 0.7 * horizon + 1e-9
+        pub_momentum = m * np.abs(vz_local)
+        pub_dist = np.where(pub_late, np.linalg.norm(tip_pos[ctrl_idx] - g, axis=1), 0.0)
+        published = (pub_momentum.sum() + force.sum() - pub_dist.sum()) / 1000.0
+        by_rule = {"paper": float(paper), "published": float(published)}
+        if rule == "paper":
+            terms = {
+                "momentum_sum": float(momentum.sum()),
+                "force_sum_n": float(force.sum()),
+                "distance_sum_m": float(dist.sum()),
+            }
+        else:
+            terms = {
+                "momentum_sum": float(pub_momentum.sum()),
+                "force_sum_n": float(force.sum()),
+                "distance_sum_m": float(pub_dist.sum()),
+            }
+    objective = by_rule[rule]
 
     bend_q = qpos[:, lay.hinge_qposadr]  # (n_pts, 3, 2, n-1)
     at_limit = np.abs(bend_q) >= BEND_LIMIT_FRACTION * lay.hinge_limit
@@ -463,4 +644,36 @@ def _simulate(
         trajectory=traj,
         timestep_s=dt,
         n_disks=params.n_disks,
+        command_hold=hold,
+        objective_rule=rule,
+        objective_by_rule=by_rule,
+        cube_lost_before_release=lost,
+        last_pad_contact_s=last_contact,
     )
+
+
+def published_throw_steps(release: int, horizon: int) -> np.ndarray:
+    """1-based steps whose tip speed the published throw rule counts (module docstring)."""
+    steps = [t for t in range(1, horizon) if t < release]
+    if 3 <= release <= horizon - 1:
+        steps.append(release)
+    return np.asarray(steps, dtype=np.int64)
+
+
+def _throw_objectives(
+    speed_at_step_end: np.ndarray,
+    cube_centre: np.ndarray,
+    cube_origin: np.ndarray,
+    release: int,
+    rule: str,
+) -> tuple[dict[str, float], dict[str, float]]:
+    horizon = speed_at_step_end.shape[0]
+    paper_sum = float(speed_at_step_end[:release].sum())
+    paper_d = float(np.linalg.norm(cube_centre))
+    counted = published_throw_steps(release, horizon)
+    pub_sum = float(speed_at_step_end[counted - 1].sum()) if counted.size else 0.0
+    pub_d = float(np.linalg.norm(cube_origin))
+    by_rule = {"paper": paper_sum + paper_d, "published": pub_sum + pub_d}
+    if rule == "paper":
+        return by_rule, {"tip_speed_sum": paper_sum, "cube_distance_m": paper_d}
+    return by_rule, {"tip_speed_sum": pub_sum, "cube_distance_m": pub_d}

@@ -13,6 +13,8 @@ from typing import Any
 
 import mujoco
 import numpy as np
+import trimesh
+from viser.transforms import SO3
 
 _GEOM_KINDS: dict[int, str] = {
     int(mujoco.mjtGeom.mjGEOM_PLANE): "plane",
@@ -119,86 +121,26 @@ def body_poses(model: mujoco.MjModel, qpos: np.ndarray) -> BodyPoses:
 def capsule_mesh(
     radius_m: float, half_length_m: float, *, segments: int = 20, rings: int = 6
 ) -> tuple[np.ndarray, np.ndarray]:
-    """A capsule along z (MuJoCo's convention): vertices (V, 3) m, faces (F, 3) int32."""
-    verts: list[tuple[float, float, float]] = []
-    # Latitude rings: bottom hemisphere then top hemisphere, each offset along z.
-    lat = np.concatenate(
-        [np.linspace(-np.pi / 2, 0.0, rings + 1), np.linspace(0.0, np.pi / 2, rings + 1)]
+    """A capsule along z (MuJoCo's convention), trimesh's: vertices (V, 3) m, faces (F, 3)
+    int32; ``segments`` around, ``rings`` latitude steps per hemisphere."""
+    mesh = trimesh.creation.capsule(
+        height=2.0 * half_length_m, radius=radius_m, count=[2 * rings, segments]
     )
-    offsets = np.concatenate(
-        [np.full(rings + 1, -half_length_m), np.full(rings + 1, half_length_m)]
-    )
-    lon = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
-    for phi, dz in zip(lat, offsets, strict=True):
-        for th in lon:
-            verts.append(
-                (
-                    radius_m * np.cos(phi) * np.cos(th),
-                    radius_m * np.cos(phi) * np.sin(th),
-                    radius_m * np.sin(phi) + dz,
-                )
-            )
-    faces: list[tuple[int, int, int]] = []
-    n_rings = len(lat)
-    for r in range(n_rings - 1):
-        for s in range(segments):
-            a = r * segments + s
-            b = r * segments + (s + 1) % segments
-            c = (r + 1) * segments + s
-            d = (r + 1) * segments + (s + 1) % segments
-            faces += [(a, b, d), (a, d, c)]
-    return np.asarray(verts, dtype=np.float32), np.asarray(faces, dtype=np.int32)
+    return np.asarray(mesh.vertices, dtype=np.float32), np.asarray(mesh.faces, dtype=np.int32)
 
 
 def cylinder_mesh(
     radius_m: float, half_height_m: float, *, segments: int = 28
 ) -> tuple[np.ndarray, np.ndarray]:
-    """A closed cylinder along z centred at 0: vertices (V, 3) m, faces (F, 3) int32.
+    """A closed cylinder along z centred at 0 (trimesh's): vertices (V, 3) m, faces (F, 3).
 
-    The caps have their own copies of the rim vertices, so the viewer's smoothed normals stay
-    radial on the side and axial on the caps (shared rims shade the disks pale).
+    The caps get their own copies of the rim vertices (``smooth_shade`` splits the 90° edges),
+    so the viewer's smoothed normals stay radial on the side and axial on the caps (shared
+    rims shade the disks pale).
     """
-    th = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
-    ring = np.stack([radius_m * np.cos(th), radius_m * np.sin(th)], axis=1)
-    lo, hi = np.full(segments, -half_height_m), np.full(segments, half_height_m)
-    blocks = [
-        np.column_stack([ring, lo]),  # side, bottom rim: 0..n-1
-        np.column_stack([ring, hi]),  # side, top rim: n..2n-1
-        np.column_stack([ring, lo]),  # bottom cap rim: 2n..3n-1
-        np.column_stack([ring, hi]),  # top cap rim: 3n..4n-1
-        np.array([[0.0, 0.0, -half_height_m], [0.0, 0.0, half_height_m]]),  # cap centres
-    ]
-    verts = np.vstack(blocks).astype(np.float32)
-    n = segments
-    cb, ct = 4 * n, 4 * n + 1
-    faces = []
-    for i in range(n):
-        j = (i + 1) % n
-        faces += [(i, j, n + j), (i, n + j, n + i)]  # side, outward
-        faces += [(cb, 2 * n + j, 2 * n + i), (ct, 3 * n + i, 3 * n + j)]  # caps, outward
-    return verts, np.asarray(faces, dtype=np.int32)
-
-
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of wxyz quaternions, broadcast over leading axes."""
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
-    )
-
-
-def _quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rotate vectors v (..., 3) by wxyz quaternions q (..., 4)."""
-    w, u = q[..., :1], q[..., 1:]
-    t = 2.0 * np.cross(u, v)
-    return v + w * t + np.cross(u, t)
+    mesh = trimesh.creation.cylinder(radius=radius_m, height=2.0 * half_height_m, sections=segments)
+    mesh = trimesh.graph.smooth_shade(mesh, angle=np.radians(80.0))
+    return np.asarray(mesh.vertices, dtype=np.float32), np.asarray(mesh.faces, dtype=np.int32)
 
 
 def instance_poses(
@@ -206,10 +148,10 @@ def instance_poses(
 ) -> tuple[np.ndarray, np.ndarray]:
     """World poses of geoms fixed in bodies, every frame: (T, N, 3) m and (T, N, 4) wxyz."""
     bpos = poses.pos_m[:, body_ids]  # (T, N, 3)
-    bquat = poses.quat_wxyz[:, body_ids]  # (T, N, 4)
-    pos = bpos + _quat_rotate(bquat, np.broadcast_to(local_pos_m, bpos.shape))
-    quat = _quat_mul(bquat, np.broadcast_to(local_quat_wxyz, bquat.shape))
-    return pos, quat
+    body = SO3(poses.quat_wxyz[:, body_ids])  # (T, N)
+    pos = bpos + body.apply(np.broadcast_to(local_pos_m, bpos.shape))
+    local = SO3(np.broadcast_to(local_quat_wxyz, body.wxyz.shape))
+    return pos, (body @ local).wxyz
 
 
 def _color(rgba: tuple[float, ...], tint: tuple[int, int, int] | None) -> tuple[int, int, int]:

@@ -14,10 +14,12 @@ import numpy as np
 
 from app.policy import (
     N_CHAMBERS,
+    TASKS,
     HardwareCeilings,
     Policy,
     PolicyError,
     PressureLimits,
+    check_release_step,
     schedule_hash,
 )
 from app.workers.drivers.base import DriverCommand
@@ -89,7 +91,7 @@ def gate_hardware_trial(
             f"claim came with experiment {experiment.get('id')!r}"
         )
     task = experiment.get("task")
-    if task not in {"tip_speed", "throw", "hammer"}:
+    if task not in TASKS:
         raise SafetyRefusal(f"unknown task {task!r}")
     policy = policy_from_experiment(experiment)
     assert policy.limits is not None
@@ -115,13 +117,10 @@ def gate_hardware_trial(
             raise SafetyRefusal(f"beyond the robot's own ceilings: {exc}") from None
 
     release = trial.get("release_step")
-    if policy.with_release:
-        if not isinstance(release, int) or isinstance(release, bool):
-            raise SafetyRefusal(f"release_step must be an integer 1..{policy.horizon}")
-        if not 1 <= release <= policy.horizon:
-            raise SafetyRefusal(f"release_step {release} is outside 1..{policy.horizon}")
-    elif release is not None:
-        raise SafetyRefusal(f"this policy has no release step, trial carries {release!r}")
+    try:
+        check_release_step(release, horizon=policy.horizon, with_release=policy.with_release)
+    except PolicyError as exc:
+        raise SafetyRefusal(str(exc)) from None
 
     try:
         decoded = policy.decode(np.asarray(trial.get("theta"), dtype=np.float64))
@@ -143,6 +142,10 @@ def gate_hardware_trial(
             f"(confirmed {str(confirmed_hash)[:12]}…, about to send {expected[:12]}…)"
         )
 
+    hold = experiment.get("command_hold") or "zero"
+    if hold not in ("zero", "linear"):
+        raise SafetyRefusal(f"unknown command hold {hold!r}; this worker knows zero and linear")
+
     return DriverCommand(
         trial_id=int(trial_id if trial_id is not None else trial.get("id", -1)),
         task=str(task),
@@ -150,4 +153,5 @@ def gate_hardware_trial(
         release_step=release,
         step_s=policy.step_s,
         nominal_pa=np.asarray(policy.limits.nominal_pa, dtype=np.float64),
+        command_hold=str(hold),
     )

@@ -59,6 +59,7 @@ def run_sim_trial(
     release_step: int | None,
     preset: str,
     record_qpos: bool = True,
+    command_hold: str = "zero",
 ) -> SimOutcome:
     """Run one rollout (in a pool process); never raises for a bad or diverging schedule."""
     from app.sim import SimulationDiverged, rollout
@@ -71,6 +72,7 @@ def run_sim_trial(
             release_step=release_step,
             preset=preset,
             record_qpos=record_qpos,
+            command_hold=command_hold,
         )
     except SimulationDiverged as exc:
         return SimOutcome(None, b"", f"simulation diverged: {exc}", time.perf_counter() - start)
@@ -107,14 +109,13 @@ def _warm_up() -> None:
 
 
 def experiment_preset(experiment: Mapping[str, Any]) -> str:
-    """The simulator preset an experiment asks for (default: reference)."""
-    for key in ("sim_preset", "preset"):
-        if experiment.get(key):
-            return str(experiment[key])
-    settings = experiment.get("settings")
-    if isinstance(settings, Mapping) and settings.get("preset"):
-        return str(settings["preset"])
-    return "reference"
+    """The simulator preset an experiment asks for (``ExperimentRead.sim_preset``)."""
+    return str(experiment["sim_preset"])
+
+
+def experiment_command_hold(experiment: Mapping[str, Any]) -> str:
+    """How an experiment's schedule rows are applied (default, and for older servers: zero)."""
+    return str(experiment.get("command_hold") or "zero")
 
 
 @dataclass
@@ -238,6 +239,7 @@ class SimWorker:
                                 trial.get("release_step"),
                                 experiment_preset(experiment),
                                 self.record_qpos,
+                                experiment_command_hold(experiment),
                             )
                             in_flight[fut] = _InFlight(
                                 claim["lease_id"], trial, experiment, time.monotonic()

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import gc
-
 from fastapi.testclient import TestClient
 
 from app.api.main import create_app
@@ -22,14 +20,10 @@ def test_startup_and_shutdown_hooks_run(migrated_db, tmp_path):
 
     app.state.startup_hooks.append(async_start)
     app.state.shutdown_hooks.append(lambda: calls.append("stop"))
-    gc.unfreeze()
     with TestClient(app) as client:
         assert calls == ["start:handful"]
-        # what start-up loaded (torch, BoTorch, MuJoCo, the app) is out of the collector's way
-        assert gc.get_freeze_count() > 10_000
         assert client.get("/health").json()["db"] == "ok"
     assert calls == ["start:handful", "stop"]
-    gc.unfreeze()  # give this test process its collector back
 
 
 def test_settings_from_environment(monkeypatch, tmp_path):

@@ -29,7 +29,10 @@ def test_create_get_list_patch(api):
     assert exp["with_release"] is True and exp["dim"] == 11 and exp["n_initial"] == 12
     assert exp["status"] == "active" and exp["created_by"] == "operator"
     assert exp["objective_unit"] == "score"
+    assert exp["command_hold"] == "zero"  # the default: each row held for its step
     assert api.get_experiment(exp["id"]) == exp
+    ramped = new_exp(api, task="throw", command_hold="linear")
+    assert api.get_experiment(ramped["id"])["command_hold"] == "linear"
     assert exp["id"] in [e["id"] for e in api.list_experiments()]
     out = api.patch_experiment(exp["id"], status="paused", notes="later", budget=40)
     assert (out["status"], out["notes"], out["budget"]) == ("paused", "later", 40)
@@ -65,6 +68,7 @@ def test_create_hardware_experiment_keeps_its_limits(api):
         ({"budget": 0}, 422, "budget"),
         ({"surprise": 1}, 422, "surprise"),
         ({"sim_preset": "nope"}, 422, "sim_preset"),
+        ({"command_hold": "cubic"}, 422, "command_hold"),
         ({"optimizer_settings": {"colour": "red"}}, 422, "colour"),
     ],
 )
@@ -189,11 +193,17 @@ def test_export_csv_and_json(api):
     rows = list(csv.DictReader(io.StringIO(api.export(exp["id"], "csv"))))
     assert [r["status"] for r in rows] == ["completed", "queued"]
     assert float(rows[0]["objective"]) == 1.25 and float(rows[0]["theta_0"]) == 0.3
+    assert {r["command_hold"] for r in rows} == {"zero"}
+    assert rows[0]["created_by"] == "operator"
+    assert rows[0]["repeats"] == "1.25 m/s imported by operator"
     data = api.export(exp["id"], "json")
-    assert data["experiment"]["id"] == exp["id"]
+    assert data["experiment"]["id"] == exp["id"] and data["experiment"]["command_hold"] == "zero"
     assert len(data["trials"]) == 2 and len(data["measurements"]) == 1
     err = error_of(api.export, exp["id"], "xml")
     assert err.status == 422
+    everything = api.export(exp["id"], "bundle")  # trajectories and the audit log too
+    assert everything["format"] == "handful-experiment-bundle"
+    assert {"trial.import", "experiment.create"} <= {a["action"] for a in everything["audit"]}
 
 
 def test_version_changes_on_every_change(api):
@@ -207,26 +217,15 @@ def test_version_changes_on_every_change(api):
     assert api.version(exp["id"]) == v2  # reading changes nothing
 
 
-def test_events_stream_sends_the_version(live_server, api):
-    exp = new_exp(api)
-    headers = {"Authorization": f"Bearer {live_server.tokens['viewer']}"}
-    url = f"{live_server.url}/api/experiments/{exp['id']}/events"
-    with httpx.stream("GET", url, headers=headers, timeout=10) as r:
-        assert r.headers["content-type"].startswith("text/event-stream")
-        first = next(line for line in r.iter_lines() if line.startswith("data:"))
-    assert json.loads(first.removeprefix("data:")) == {"version": api.version(exp["id"])}
-
-
-def test_events_stream_accepts_a_token_in_the_query(live_server, api):
-    """Browsers' EventSource cannot send headers: ?token= works on the events stream only."""
+def test_no_route_takes_a_token_in_its_url(live_server, api):
+    """Tokens travel only in the Authorization header (URLs end up in access logs)."""
     exp = new_exp(api)
     base = f"{live_server.url}/api/experiments/{exp['id']}"
     token = live_server.tokens["viewer"]
-    with httpx.stream("GET", f"{base}/events?token={token}", timeout=10) as r:
-        assert r.status_code == 200
-        first = next(line for line in r.iter_lines() if line.startswith("data:"))
-    assert json.loads(first.removeprefix("data:"))["version"] >= 1
     assert httpx.get(f"{base}/version?token={token}").status_code == 401
+    assert httpx.get(f"{base}/events?token={token}").status_code == 404  # no SSE: poll /version
+    paths = httpx.get(live_server.url + "/openapi.json").json()["paths"]
+    assert not any(p.endswith("/events") for p in paths)
 
 
 def test_openapi_docs_and_health(live_server):

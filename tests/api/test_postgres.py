@@ -17,14 +17,12 @@ from pathlib import Path
 
 import pytest
 from sqlalchemy import inspect as sa_inspect
-from sqlalchemy import text
 
 from app.client import HandfulAPIError
 from app.db.migrate import downgrade, upgrade
 from app.db.session import Database
 
 from ..conftest import ServerHandle, claim_until_empty, free_port, seed_users
-from ..service.test_prepared import check_same_as_execute
 
 pytestmark = pytest.mark.slow
 
@@ -126,15 +124,6 @@ def pg_server(postgres_url, tmp_path_factory) -> Iterator[ServerHandle]:
     handle.start()
     yield handle
     handle.close()
-
-
-def test_prepared_statements_store_what_execute_stores_on_postgres(postgres_url):
-    upgrade(postgres_url)
-    check_same_as_execute(postgres_url)
-    db = Database(postgres_url)
-    with db.write() as s:  # leave the tables as the other tests expect them
-        s.execute(text("DELETE FROM idempotency_keys"))
-    db.dispose()
 
 
 def test_the_api_runs_on_postgres_and_claims_never_collide(pg_server):

@@ -245,6 +245,14 @@ def test_run_simulates_and_records(api, queued):
     assert err.status == 409 and "completed" in err.detail
 
 
+def test_run_with_a_horizon_the_simulator_cannot_run_is_422_and_leaves_it_queued(api):
+    exp = new_exp(api, horizon=3)  # 5 s / 3 is not a whole number of physics steps
+    [trial] = api.suggest(exp["id"])
+    err = error_of(api.run_trial, trial["id"])
+    assert err.status == 422 and "horizon 3" in err.detail
+    assert api.get_trial(trial["id"])["status"] == "queued"
+
+
 def test_run_refuses_hardware_and_missing_trajectory_is_404(api):
     exp = new_exp(api, target="hardware", limits={"nominal_pa": 100_000.0})
     [trial] = api.suggest(exp["id"])

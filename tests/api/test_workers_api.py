@@ -6,6 +6,7 @@ from __future__ import annotations
 import base64
 import io
 import sqlite3
+import time
 
 import numpy as np
 import pytest
@@ -85,11 +86,7 @@ def test_sim_claim_heartbeat_result(op, worker):
     )
     t = out["trial"]
     assert t["status"] == "completed" and t["objective"] == 2.5 and t["has_trajectory"]
-    assert t["executed_theta"] is not None
-    assert (
-        Policy(levels=3).decode(np.asarray(t["executed_theta"])).pressure_schedule_pa.tolist()
-        == trial["pressure_schedule_pa"]
-    )
+    assert t["executed_theta"] == trial["theta"]  # it ran the plan: the planned θ
     detail = op.get_trial(trial["id"])
     assert [(m["source"], m["created_by"]) for m in detail["measurements"]] == [("sim", "worker")]
     assert op.trajectory(trial["id"])["tip_speed_m_s"] == [2.5] * 11
@@ -296,3 +293,43 @@ def test_hardware_throw_waits_for_the_operators_tape_measure(op, worker):
         t["id"], [{"value": 2.4, "unit": "m", "note": "tape"}, {"value": 2.6, "unit": "m"}]
     )
     assert measured["objective"] == pytest.approx(2.5) and measured["n_measurements"] == 2
+
+
+def test_a_small_upload_of_a_huge_array_is_refused_before_the_lock(op, worker, module_server):
+    exp = new_exp(op)
+    [t] = op.suggest(exp["id"])
+    [c] = worker.claim("w", "sim")
+    buf = io.BytesIO()
+    np.savez_compressed(buf, tip_speed_m_s=np.zeros(16 * 1024 * 1024))  # 128 MB in ~125 KB
+    lock = sqlite3.connect(module_server.data_dir / "handful.db", isolation_level=None)
+    lock.execute("BEGIN IMMEDIATE")  # another program holds the write lock meanwhile
+    try:
+        t0 = time.perf_counter()
+        err = error_of(worker.report_result, t["id"], c["lease_id"], trajectory_npz=buf.getvalue())
+        elapsed = time.perf_counter() - t0
+    finally:
+        lock.rollback()
+        lock.close()
+    assert err.status == 413 and "at most 50000 samples" in err.detail
+    assert elapsed < 5  # checked before waiting for the database
+    trial = op.get_trial(t["id"])
+    assert trial["status"] == "running" and not trial["has_trajectory"]
+    worker.report_result(t["id"], c["lease_id"], objective=1.0)  # the lease still holds
+
+
+def test_a_ragged_executed_schedule_is_422_and_the_lease_holds(op, worker, module_server):
+    import httpx
+
+    exp = new_exp(op)
+    [t] = op.suggest(exp["id"])
+    [c] = worker.claim("w", "sim")
+    ragged = [[0.0] * 12] * 9 + [[0.0] * 11]
+    r = httpx.post(
+        f"{module_server.url}/api/trials/{t['id']}/result",
+        json={"lease_id": c["lease_id"], "executed_pressure_schedule_pa": ragged},
+        headers={"Authorization": f"Bearer {module_server.tokens['worker']}"},
+        timeout=30,
+    )
+    assert r.status_code == 422 and "row 9 has 11 pressures" in r.text
+    assert op.get_trial(t["id"])["status"] == "running"
+    worker.report_result(t["id"], c["lease_id"], objective=1.0)

@@ -13,7 +13,6 @@ from gpytorch.kernels import MaternKernel, ScaleKernel
 from gpytorch.likelihoods import FixedNoiseGaussianLikelihood
 
 from app.optim import METHODS, BayesOpt, Observation, SettingsError, make_optimizer
-from app.optim.bo import LevelSpace
 from app.policy import Policy
 
 FAST = {"num_restarts": 2, "raw_samples": 64, "fit_maxiter": 50}
@@ -103,33 +102,28 @@ def test_rebuilding_from_observations_gives_the_live_suggestion(method):
 def test_distinct_never_suggests_a_schedule_already_run_or_pending():
     # |θ − ½| summed rewards the box's corners; at P = 2, H = 4 the corners of θ are schedules
     # a plain θ-space GP keeps coming back to (θ 0.001 and 0.002 decode to the same action).
-    space = LevelSpace(2, 4, False)
+    policy = Policy(levels=2, horizon=4)
+
+    def keys_of(theta: np.ndarray) -> list[tuple[int, ...]]:
+        return [tuple(row) for row in policy.grid_from_theta(theta).tolist()]
+
     f = lambda th: float(np.abs(th - 0.5).sum())  # noqa: E731
     settings = {"levels": 2, "horizon": 4, "n_initial": 4, **FAST}
     opt = make_optimizer("bo-lei-distinct", 4, seed=0, **settings)
     pending = None
     for _ in range(14):
         x = opt.suggest(2, pending=pending) if pending is not None else opt.suggest(1)
-        keys = space.keys(x)
+        keys = keys_of(x)
         assert len(set(keys)) == len(keys)
-        assert not set(keys) & set(space.keys(opt.train_data()[0]))
+        assert not set(keys) & set(keys_of(opt.train_data()[0]))
         if pending is not None:
-            assert not set(keys) & set(space.keys(pending))
+            assert not set(keys) & set(keys_of(pending))
         opt.observe(x[0], f(x[0]))
         pending = x[1:] if len(x) > 1 else np.array([[0.999, 0.999, 0.001, 0.5]])
-    assert len(set(space.keys(opt.train_data()[0]))) == opt.n_observed == 14
+    assert len(set(keys_of(opt.train_data()[0]))) == opt.n_observed == 14
     rebuilt = make_optimizer("bo-lei-distinct", 4, seed=0, **settings)
     rebuilt.observe_many(opt.observations)
     np.testing.assert_array_equal(opt.suggest(1), rebuilt.suggest(1))
-
-
-def test_level_space_keys_are_the_decoded_schedule():
-    policy = Policy(levels=3, with_release=True)
-    space = LevelSpace(3, 10, True)
-    theta = np.random.default_rng(4).random((50, 11))
-    for th, key in zip(theta, space.keys(theta), strict=True):
-        d = policy.decode(th)
-        assert key == (*d.action_indices.tolist(), d.release_step - 1)  # 1-based step
 
 
 def test_trust_region_grows_on_successes_shrinks_on_failures_and_restarts():
@@ -278,35 +272,100 @@ def test_new_experiments_default_to_the_optimisers_default_method():
     assert spec.method == DEFAULT_METHOD
 
 
-@pytest.mark.parametrize(("levels", "with_release"), [(2, False), (5, True), (3, True)])
-def test_level_space_matches_the_policy_decoding(levels, with_release):
-    policy = Policy(levels=levels, with_release=with_release)
-    space = LevelSpace(levels, 10, with_release)
-    rng = np.random.default_rng(levels)
-    theta = rng.random((20, policy.dim))
-    feats = space.to_features(theta)
-    for th, f in zip(theta, feats, strict=True):
-        d = policy.decode(th)
-        np.testing.assert_array_equal(np.rint(f[:60] * (levels - 1)), d.level_indices.ravel())
-        if with_release:
-            assert round(f[60] * 9) + 1 == d.release_step
-    back = space.to_theta(feats)
-    for th, b in zip(theta, back, strict=True):
-        d1, d2 = policy.decode(th), policy.decode(b)
-        np.testing.assert_array_equal(d1.action_indices, d2.action_indices)
-        assert d1.release_step == d2.release_step
-
-
 def test_handful_bo_suggests_unseen_grid_points_and_rebuilds_identically():
     settings = {"levels": 2, "raw_samples": 64, "num_restarts": 2, "fit_maxiter": 20}
     opt = live("bo-levels", 11, 13, seed=2, **settings)
-    space = LevelSpace(2, 10, True)
-    seen = {tuple(r) for r in space.to_features(opt.train_data()[0])}
+    policy = Policy(levels=2, with_release=True)
+    seen = {tuple(r) for r in policy.grid_from_theta(opt.train_data()[0]).tolist()}
     x = opt.suggest(1)
-    assert tuple(space.to_features(x)[0]) not in seen
+    assert tuple(policy.grid_from_theta(x)[0].tolist()) not in seen
     rebuilt = make_optimizer("bo-levels", 11, seed=2, **settings)
     rebuilt.observe_many([Observation(o.theta, o.value) for o in opt.observations])
     np.testing.assert_array_equal(x, rebuilt.suggest(1))
     x2 = opt.suggest(1, pending=x)
-    assert tuple(space.to_features(x2)[0]) != tuple(space.to_features(x)[0])
+    assert not np.array_equal(policy.grid_from_theta(x2), policy.grid_from_theta(x))
     assert opt.lengthscales().shape == (11,)
+
+
+def test_anchor_sizes_step_by_every_then_by_a_fraction_of_n():
+    from app.optim.bo import anchor_size
+
+    anchors = sorted({anchor_size(n, 10, 0.1) for n in range(2, 600)})
+    assert anchors[:4] == [2, 12, 22, 32]
+    steps = np.diff(anchors)
+    assert (steps >= 10).all() and (np.diff(steps) >= 0).all()
+    assert anchor_size(500, 10, 0.1) == 489  # ... 403, 444, 489, 538: one full fit in ~50
+    assert [anchor_size(n, 1, 0.0) for n in (2, 3, 17)] == [2, 3, 17]  # every trial: "full"
+
+
+def _mll(model) -> float:
+    from gpytorch.mlls import ExactMarginalLogLikelihood
+
+    mll = ExactMarginalLogLikelihood(model.likelihood, model)
+    model.train()
+    with torch.no_grad():
+        out = mll(model(*model.train_inputs), model.train_targets).item()
+    model.eval()
+    return out
+
+
+def test_warm_fits_reach_the_full_fits_likelihood_and_rebuild_the_same(monkeypatch):
+    """fit_mode="warm" starts each fit from the last anchor's hyperparameters: its marginal
+    likelihood is the from-scratch fit's (to 1 %), and it is a function of the data alone."""
+    import app.optim.bo as bo
+
+    starts: list[tuple[int, np.ndarray]] = []  # (N, raw lengthscales) each fit started from
+    real_fit = bo.fit_gp
+
+    def recording_fit(model, maxiter=None):
+        ls = model.covar_module.base_kernel.raw_lengthscale.detach().numpy().copy()
+        starts.append((model.train_targets.shape[-1], ls))
+        return real_fit(model, maxiter)
+
+    monkeypatch.setattr(bo, "fit_gp", recording_fit)
+    dim, n = 5, 47  # anchors 2, 12, 22, 32, 42: the model at 47 is a warm fit
+    x = np.random.default_rng(3).random((n, dim))
+    y = [bumpy(v) for v in x]
+    live_warm = make_optimizer("bo-lei", dim, seed=0, fit_mode="warm")
+    for i in range(n):  # observe one by one, asking for the model now and then (as a sweep)
+        live_warm.observe(x[i], y[i])
+        if i >= 40:
+            live_warm.model()
+    assert live_warm._anchor is not None and live_warm._anchor[0] == 42
+    fitted_at_42 = live_warm._anchor[1]["covar_module.base_kernel.raw_lengthscale"].numpy()
+    assert [k for k, _ in starts] == [32, 41, 42, 43, 44, 45, 46, 47]  # 41 needs 32's anchor
+    np.testing.assert_array_equal(starts[-1][1], fitted_at_42)  # 47 started from 42's fit
+    assert not np.allclose(starts[2][1], fitted_at_42)  # 42 itself: from the priors' defaults
+    n_fits = len(starts)
+
+    full = make_optimizer("bo-lei", dim, seed=0)
+    rebuilt = make_optimizer("bo-lei", dim, seed=0, fit_mode="warm")
+    for opt in (full, rebuilt):
+        opt.observe(x, y)
+    rebuilt.model()
+    assert [k for k, _ in starts[n_fits:]] == [42, 47]  # a rebuild pays for its anchor once
+    m_full, m_warm = _mll(full.model()), _mll(live_warm.model())
+    assert m_warm >= m_full - 0.01 * abs(m_full), (m_warm, m_full)
+    probe = np.random.default_rng(4).random((20, dim))
+    mean_l, std_l = live_warm.predict(probe)
+    mean_r, std_r = rebuilt.predict(probe)
+    np.testing.assert_allclose(mean_l, mean_r, atol=1e-9)
+    np.testing.assert_allclose(std_l, std_r, atol=1e-9)
+    mean_f, _ = full.predict(probe)
+    assert np.corrcoef(mean_f, mean_l)[0, 1] > 0.99
+
+
+@pytest.mark.parametrize(
+    "settings",
+    [
+        {"fit_mode": "quick"},
+        {"refit_every": 0},
+        {"refit_every": 2.5},
+        {"refit_fraction": -1},
+        {"warm_maxiter": 0},
+    ],
+)
+def test_bad_fit_settings_name_the_setting(settings):
+    name = next(iter(settings))
+    with pytest.raises(SettingsError, match=name):
+        make_optimizer("bo-lei", 4, seed=0, **settings)

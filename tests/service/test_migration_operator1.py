@@ -49,9 +49,9 @@ def _sources(path) -> list[tuple[int, str]]:
 def test_sources_are_mapped_and_nothing_is_lost_either_way(tmp_path):
     path = tmp_path / "m.db"
     url = f"sqlite:///{path}"
-    upgrade(url, "0002")
+    upgrade(url, "harden1")
     _seed(path)
     upgrade(url, "operator1")
     assert _sources(path) == [(1, "tape"), (2, "tracker"), (3, "sim"), (4, "imported")]
-    downgrade(url, "0002")
+    downgrade(url, "harden1")
     assert _sources(path) == [(1, "operator"), (2, "worker"), (3, "worker"), (4, "operator")]

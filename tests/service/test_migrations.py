@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import sqlite3
 
+import numpy as np
 import pytest
 from sqlalchemy import inspect
 
 from app.db.base import Base
 from app.db.migrate import downgrade, upgrade
 from app.db.session import Database, make_engine
+from app.service import trials
 
 
 def _tables(url: str) -> set[str]:
@@ -66,3 +68,88 @@ def test_audit_log_is_append_only_in_the_database(migrated_db):
         with pytest.raises(sqlite3.IntegrityError, match="append-only"):
             con.execute(sql)
     con.close()
+
+
+def test_command_hold_revision_gives_old_experiments_zero_and_downgrades(tmp_path):
+    url = f"sqlite:///{tmp_path / 'm.db'}"
+    upgrade(url, "0002")
+    path = url.removeprefix("sqlite:///")
+    con = sqlite3.connect(path)
+    cols = [r for r in con.execute("PRAGMA table_info(experiments)") if r[1] != "id"]
+    assert "command_hold" not in [r[1] for r in cols]
+    values = {
+        r[1]: (0 if r[2].upper() in ("INTEGER", "BOOLEAN", "FLOAT") else "{}" if r[2] == "JSON"
+               else "2026-01-01 00:00:00" if r[2] in ("DATETIME", "TIMESTAMP") else "x")
+        for r in cols if r[3]  # NOT NULL columns
+    }  # fmt: skip
+    con.execute(
+        f"INSERT INTO experiments ({', '.join(values)}) VALUES ({', '.join('?' * len(values))})",
+        list(values.values()),
+    )
+    con.commit()
+    con.close()
+    upgrade(url)
+    con = sqlite3.connect(path)
+    assert con.execute("SELECT command_hold FROM experiments").fetchall() == [("zero",)]
+    con.close()
+    downgrade(url, "0002")
+    con = sqlite3.connect(path)
+    assert "command_hold" not in [r[1] for r in con.execute("PRAGMA table_info(experiments)")]
+    assert con.execute("SELECT COUNT(*) FROM experiments").fetchone() == (1,)
+    con.close()
+
+
+def test_executed_theta_rows_are_rewritten_to_the_one_rule_and_back(db, make_experiment):
+    """Revision oneway1: a worker's result stored as the centre of the planned bins becomes
+    the planned θ; one that ran other actions, and a run in the service, stay as they are."""
+    from datetime import timedelta
+
+    from alembic.script import ScriptDirectory
+
+    from app.db.base import utcnow
+    from app.db.migrate import alembic_config
+    from app.db.models import Lease, Trial
+    from app.policy import Policy
+    from tests.service.conftest import OPERATOR
+
+    url = str(db.engine.url)
+    exp_id = make_experiment(task="throw", levels=3)
+    policy = Policy(levels=3, with_release=True)
+    rng = np.random.default_rng(0)
+    planned = [rng.random(11) for _ in range(3)]
+    centre = [policy.theta_from_actions(*policy.actions_from_theta(th)) for th in planned]
+    other = policy.theta_from_actions(np.arange(10), 3)  # actions the plan did not have
+    old_rule = {0: centre[0], 1: other, 2: planned[2]}  # worker, worker, run in the service
+    ids = []
+    with db.write() as s:
+        for i, th in enumerate(planned):
+            t = trials.attach(s, exp_id, th.tolist(), note="", actor=OPERATOR)
+            ids.append(t.id)
+            if i < 2:
+                now = utcnow()
+                s.add(
+                    Lease(
+                        id=f"lease-{i}",
+                        trial_id=t.id,
+                        worker_id="w",
+                        claimed_by="worker",
+                        status="completed",
+                        attempt=1,
+                        expires_at=now + timedelta(minutes=1),
+                    )
+                )
+    before = ScriptDirectory.from_config(alembic_config(url)).get_revision("oneway1").down_revision
+
+    def stored() -> list[list[float]]:
+        with db.read() as s:
+            return [list(s.get(Trial, i).executed_theta) for i in ids]
+
+    downgrade(url, before)
+    with db.write() as s:
+        for i, tid in enumerate(ids):
+            s.get(Trial, tid).executed_theta = [float(v) for v in old_rule[i]]
+    upgrade(url, "oneway1")
+    assert stored() == [planned[0].tolist(), other.tolist(), planned[2].tolist()]
+    downgrade(url, before)
+    assert stored() == [centre[0].tolist(), other.tolist(), planned[2].tolist()]
+    upgrade(url)

@@ -108,10 +108,24 @@ def test_theta_and_schedule_file_give_the_same_throw(tmp_path: Path) -> None:
     assert json.loads(by_file.stdout)["objective"] == summary["objective"]
 
 
+def test_hold_and_rule_reach_the_episode_and_its_json() -> None:
+    theta = "0.1,0.9,0.3,0.7,0.5,0.2,0.8,0.4,0.6,0.05,0.35"
+    base = ["--task", "throw", "--preset", "fast", "--theta", theta, "--json"]
+    default = json.loads(run(*base).stdout)
+    assert (default["command_hold"], default["objective_rule"]) == ("zero", "paper")
+    out = run(*base, "--command-hold", "linear", "--objective", "published")
+    assert out.returncode == 0, out.stderr
+    ramped = json.loads(out.stdout)
+    assert (ramped["command_hold"], ramped["objective_rule"]) == ("linear", "published")
+    assert ramped["objective"] == ramped["objective_by_rule"]["published"]
+    assert ramped["max_tip_speed"] != default["max_tip_speed"]
+
+
 def test_plain_output_is_one_line() -> None:
     out = run("--task", "tip_speed", "--preset", "fast", "--random")
     assert out.returncode == 0
     assert out.stdout.count("\n") == 1 and "max_tip_speed=" in out.stdout
+    assert "command_hold=zero" in out.stdout and "objective_rule=paper" in out.stdout
 
 
 def _schedule_file(tmp_path: Path, doc: object) -> str:
@@ -134,6 +148,14 @@ def _schedule_file(tmp_path: Path, doc: object) -> str:
         (["--task", "hammer"], "give one of --theta"),
         (["--task", "hammer", "--random", "--theta", "0.5"], "give only one of"),
         (["--task", "hammer", "--schedule", "/nonexistent/s.json"], "cannot read"),
+        (
+            ["--task", "hammer", "--random", "--command-hold", "cubic"],
+            "unknown --command-hold 'cubic'; choose one of zero, linear",
+        ),
+        (
+            ["--task", "hammer", "--random", "--objective", "best"],
+            "unknown --objective 'best'; choose one of paper, published",
+        ),
     ],
 )
 def test_bad_arguments_exit_nonzero_with_one_line(args: list[str], message: str) -> None:

@@ -8,8 +8,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from app.policy import CHAMBER_NAMES
-from app.sim import TASKS, ArmParams, build_model, export_xml
+from app.policy import CHAMBER_NAMES, SIM_MAX_PRESSURE_PA
+from app.sim import TASKS, ArmParams, GripperParams, build_model, export_xml
 from app.sim.model import EEF_SITE, disk_body_name, hinge_joint_name
 
 PARAMS = ArmParams()
@@ -86,7 +86,7 @@ def test_actuators_follow_chamber_order(arm: mujoco.MjModel) -> None:
         assert act.gear[0] == pytest.approx(sign * (0.10, 0.05, 0.05)[j])
         assert act.gainprm[0] == pytest.approx(areas[j])
         assert act.dynprm[0] == pytest.approx((0.2, 0.5, 0.8)[j])
-        np.testing.assert_allclose(act.ctrlrange, [0, 40 * 6895.0])
+        np.testing.assert_allclose(act.ctrlrange, [0, SIM_MAX_PRESSURE_PA])
     # each tendon sums its joint's nine x (or y) hinges with coefficient 1
     assert arm.ntendon == 6
     np.testing.assert_array_equal(arm.tendon_num, [9] * 6)
@@ -100,19 +100,30 @@ def test_task_loads() -> None:
     arm_mass = bare.body_subtreemass[0]
     assert hammer.body_subtreemass[0] - arm_mass == pytest.approx(2.0)
     assert hammer.body("hammer").pos[2] == pytest.approx(1.5 * H + 0.08)
-    assert throw.body("gripper").mass[0] == pytest.approx(0.90)
+    assert throw.body_subtreemass[throw.body("gripper").id] == pytest.approx(0.90)
     assert throw.body("cube").mass[0] == pytest.approx(0.25)
     plate = hammer.geom("plate")
     np.testing.assert_allclose(plate.size[:2], [0.25, 0.01])
     np.testing.assert_allclose(plate.pos, [-0.5, 0.5, 0.01])
     assert hammer.body("hammer").mass[0] == pytest.approx(2.0)
-    # the cube starts 0.14 m beyond the tip along the tip's axis, held by an active weld
+    # the cube's centre starts 0.162 m beyond the tip along the tip's axis, its body origin
+    # 1.25 cm nearer; between the open pads (friction grasp): no weld, no contact yet
     data = mujoco.MjData(throw)
     mujoco.mj_forward(throw, data)
     tip = data.site_xpos[throw.site(EEF_SITE).id]
     axis = data.site_xmat[throw.site(EEF_SITE).id].reshape(3, 3)[:, 2]
-    np.testing.assert_allclose(data.xpos[throw.body("cube").id], tip + 0.14 * axis, atol=1e-9)
-    assert throw.eq_active0[0] == 1 and data.ncon == 0
+    centre = data.site_xpos[throw.site("cube_centre").id]
+    np.testing.assert_allclose(centre, tip + 0.162 * axis, atol=1e-9)
+    np.testing.assert_allclose(data.xpos[throw.body("cube").id], tip + 0.1495 * axis, atol=1e-9)
+    assert throw.neq == 1 and throw.nu == 13 and data.ncon == 0  # the fingers' coupling only
+    assert throw.opt.impratio == 10.0
+    # the weld option (and the fast preset) weld it instead, active from the start
+    welded = build_model("throw", params=ArmParams(gripper=GripperParams(grasp="weld")))
+    assert welded.body("gripper").mass[0] == pytest.approx(0.90) and welded.nu == 12
+    assert welded.equality("grip").id >= 0 and welded.eq_active0[0] == 1
+    assert build_model("throw", "fast").nu == 12
+    with pytest.raises(ValueError, match="unknown grasp 'glue'"):
+        GripperParams(grasp="glue")
 
 
 def test_gravity_and_reference_options() -> None:

@@ -8,9 +8,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from app.policy import SIM_MAX_PRESSURE_PA
 from app.sim import ArmParams, SimulationDiverged, rollout
 
-P_MAX = 40 * 6895.0
+P_MAX = SIM_MAX_PRESSURE_PA  # 40 psi
 NO_GRAVITY = ArmParams(gravity_m_s2=(0.0, 0.0, 0.0))
 
 

@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from app.policy import Policy
+from app.policy import SIM_MAX_PRESSURE_PA, Policy
 from app.sim import (
     ArmParams,
     RolloutResult,
@@ -19,7 +19,7 @@ from app.sim import (
     rollout_batch,
 )
 
-P_MAX = 40 * 6895.0
+P_MAX = SIM_MAX_PRESSURE_PA  # 40 psi
 
 
 def random_schedule(seed: int, task: str = "hammer") -> tuple[np.ndarray, int | None]:
@@ -154,7 +154,7 @@ def test_summary_is_json() -> None:
         ({"schedule": np.full((10, 12), np.nan)}, "not a finite number"),
         ({"task": "throw"}, "throw needs release_step"),
         ({"task": "throw", "release_step": 11}, r"release_step must be in 1\.\.10"),
-        ({"release_step": 3}, "release_step only applies to throw"),
+        ({"release_step": 3}, r"no release step \(release_step applies to throw only\)"),
         ({"record_hz": 0.0}, "record_hz must be a positive number"),
         ({"schedule": np.zeros((7, 12))}, "not a whole number"),
     ],

@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import httpx
 import numpy as np
 import pytest
 from PIL import Image
@@ -143,6 +144,13 @@ def test_operator_loop_on_the_standin_robot(
     viser_src = page.get_attribute("#viz-frame", "src")
     # through the main port (proxied to viser): a lab that forwards one port keeps the 3D view
     assert viser_src.startswith(f"{server.url}/viz/client/") and "viz%2Fws%2Fview" in viser_src
+    # framed by our own page only: the proxied client may be framed by its own origin, every
+    # other reply keeps the security headers' "no frames at all"
+    client = httpx.get(viser_src, timeout=30)
+    assert "frame-ancestors 'self'" in client.headers["content-security-policy"]
+    assert client.headers["x-frame-options"] == "SAMEORIGIN"
+    page_reply = httpx.get(f"{server.url}/experiments/{trial['experiment_id']}", timeout=30)
+    assert "frame-ancestors 'none'" in page_reply.headers["content-security-policy"]
     page.click("#viz-close")  # software WebGL is heavy on a small CI machine
 
     # 5. confirm: the page sends the hash of the schedule it showed

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 from typing import Any
@@ -10,6 +11,8 @@ import httpx
 import pytest
 
 from app.dashboard import WEB_DIR, plotly_js_path
+from app.policy import SIM_MAX_PRESSURE_PA
+from app.service.lifecycle import STATUSES
 
 LIMITS = {"nominal_pa": 100_000.0, "max_step_pa": 30_000.0, "source_pa": 205_000.0}
 
@@ -25,6 +28,35 @@ def test_no_asset_comes_from_another_host() -> None:
     assert plotly_js_path().stat().st_size > 1_000_000
 
 
+# What the pages' variables hold: the published schema they are read with.
+JS_VARIABLES = {
+    "t": "TrialDetail",
+    "trial": "TrialDetail",
+    "e": "ExperimentRead",
+    "exp": "ExperimentRead",
+    "experiment": "ExperimentRead",
+    "job": "PreviewJobRead",
+    "model": "ModelRead",
+}
+
+
+def test_the_pages_read_only_fields_the_schemas_publish() -> None:
+    """No page guesses a field name: every ``trial.x``, ``e.x``, ``job.x``... is a property of
+    the schema the server publishes for that reply (``/api-schema.js`` serves them)."""
+    from app.service import schemas
+
+    wrong = []
+    for path in sorted((Path(WEB_DIR) / "static" / "js").glob("*.js")):
+        src = path.read_text().replace("e.g.", "")
+        for var, name in JS_VARIABLES.items():
+            model = getattr(schemas, name)
+            fields = set(model.model_json_schema(mode="serialization")["properties"])
+            for m in re.finditer(rf"(?<![\w.]){var}\??\.([A-Za-z_]\w*)", src):
+                if m.group(1) not in fields:
+                    wrong.append(f"{path.name}: {var}.{m.group(1)} is not in {name}")
+    assert wrong == []
+
+
 def test_pages_plotly_and_the_view_route(dashboard_server: Any) -> None:
     server = dashboard_server
     base = server.url
@@ -36,6 +68,13 @@ def test_pages_plotly_and_the_view_route(dashboard_server: Any) -> None:
             if ref.startswith("/static/") or ref.startswith("/vendor/"):
                 assert httpx.get(base + ref).status_code == 200, ref
     assert httpx.get(base + "/", follow_redirects=False).headers["location"] == "/experiments"
+    module = httpx.get(base + "/api-schema.js")
+    assert module.headers["content-type"].startswith("text/javascript")
+    consts = dict(re.findall(r"^export const (\w+) = (.*);$", module.text, re.MULTILINE))
+    assert json.loads(consts["SIM_MAX_PRESSURE_PA"]) == SIM_MAX_PRESSURE_PA
+    assert json.loads(consts["TRIAL_STATUSES"]) == list(STATUSES)
+    assert json.loads(consts["RELEASE_TASKS"]) == ["throw"]
+    assert "TrialRead" in json.loads(consts["SCHEMAS"])
     js = httpx.get(base + "/vendor/plotly.min.js")
     assert js.status_code == 200 and js.headers["content-type"].startswith("text/javascript")
     assert len(js.content) == plotly_js_path().stat().st_size

@@ -87,7 +87,13 @@ def test_batched_disk_poses_match_mujoco() -> None:
 
 def test_cylinder_mesh_is_closed_and_sized() -> None:
     verts, faces = cylinder_mesh(0.125, 0.005, segments=12)
-    assert np.hypot(verts[:48, 0], verts[:48, 1]) == pytest.approx(np.full(48, 0.125))
+    radial = np.hypot(verts[:, 0], verts[:, 1]).astype(float)
+    rim = radial > 1e-9  # all but the two cap centres
+    assert rim.sum() == 48 and radial[rim] == pytest.approx(np.full(48, 0.125))
+    # the caps have their own rim vertices: no vertex is shared by a side and a cap face
+    tri = verts[faces].astype(float)
+    on_cap = np.ptp(tri[:, :, 2], axis=1) < 1e-9
+    assert not set(faces[on_cap].ravel().tolist()) & set(faces[~on_cap].ravel().tolist())
     assert np.unique(np.round(verts[:, 2].astype(float), 6)).tolist() == [-0.005, 0.005]
     # closed (caps and side have their own rim copies): every edge, by position, is shared
     # by exactly two faces
@@ -99,7 +105,6 @@ def test_cylinder_mesh_is_closed_and_sized() -> None:
             edges[key] = edges.get(key, 0) + 1
     assert set(edges.values()) == {2}
     # outward: each face's normal points away from the centre
-    tri = verts[faces].astype(float)
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     assert np.all(np.einsum("ij,ij->i", normal, tri.mean(axis=1)) > 0)
 

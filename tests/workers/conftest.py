@@ -64,6 +64,9 @@ def worker_factory(tmp_path: Path) -> Iterator[Callable[..., WorkerProc]]:
 
     def start(server: Any, kind: str, *args: str, role: str = "worker") -> WorkerProc:
         log_path = tmp_path / f"worker{len(procs)}-{kind}.log"
+        token_file = tmp_path / f"worker{len(procs)}.token"
+        token_file.write_text(server.tokens[role] + "\n")
+        token_file.chmod(0o600)
         cmd = [
             sys.executable,
             "-m",
@@ -72,8 +75,8 @@ def worker_factory(tmp_path: Path) -> Iterator[Callable[..., WorkerProc]]:
             kind,
             "--server",
             server.url,
-            "--token",
-            server.tokens[role],
+            "--token-file",  # never on the command line (ps shows it to everyone)
+            str(token_file),
             "--poll",
             "0.2",
             *args,

@@ -160,3 +160,35 @@ def test_standin_abort_stops_a_realtime_run_and_vents_to_nominal(tmp_path):
         ex.executed_pressure_schedule_pa[done:],
         np.broadcast_to(cmd.nominal_pa, (cmd.horizon - done, 12)),
     )
+
+
+def test_standin_runs_the_schedule_with_the_experiments_command_hold(tmp_path):
+    theta = np.random.default_rng(5).random(POLICY.dim)
+    held = command(theta)
+    ramped = DriverCommand(
+        1, "tip_speed", held.pressure_schedule_pa, None, POLICY.step_s, held.nominal_pa, "linear"
+    )
+    driver = quiet(tmp_path, bias_step_pa="0", stiffness_step="0")
+    tracking = driver.execute(ramped).tracking
+    sched = held.pressure_schedule_pa
+
+    def tip_error_mm(hold: str) -> float:
+        traj = rollout("tip_speed", sched, preset="fast", command_hold=hold).trajectory
+        ref = np.stack(
+            [np.interp(tracking.time_s, traj.time_s, traj.tip_pos_m[:, k]) for k in range(3)], 1
+        )
+        return float(np.sqrt(((tracking.tip_pos_m - ref) ** 2).sum(axis=1).mean()) * 1e3)
+
+    assert tip_error_mm("linear") < 3.0 < 10 * tip_error_mm("linear") < tip_error_mm("zero")
+
+
+def test_sim_worker_rolls_out_with_the_experiments_command_hold():
+    from app.workers.sim import experiment_command_hold, run_sim_trial
+
+    assert experiment_command_hold({"task": "hammer"}) == "zero"  # older servers: held
+    assert experiment_command_hold({"command_hold": "linear"}) == "linear"
+    sched = POLICY.decode(np.random.default_rng(2).random(POLICY.dim)).pressure_schedule_pa
+    out = run_sim_trial("tip_speed", sched, None, "fast", False, "linear")
+    assert out.summary["command_hold"] == "linear"
+    want = rollout("tip_speed", sched, preset="fast", command_hold="linear").objective
+    assert out.objective == want != rollout("tip_speed", sched, preset="fast").objective

@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 from app.policy import Policy, PressureLimits, schedule_hash
 from app.workers.drivers import load_driver
 from app.workers.drivers.recording import read_log
+from app.workers.gate import SafetyRefusal, gate_hardware_trial
 from app.workers.hardware import execute_claim
 
 ROBOT_CEILING_PA = 205_000.0
@@ -191,3 +192,13 @@ def check_claim(tmp_path, forgery: str, claim: dict, honest: dict) -> None:
         assert outcome.payload["fault"].startswith("refused by the hardware worker: ")
         assert outcome.payload["executed_pressure_schedule_pa"] is None
         assert outcome.payload["objective"] is None
+
+
+def test_unknown_command_hold_is_refused_and_a_known_one_reaches_the_driver():
+    claim, _ = claims(forgery="none").example()
+    trial, experiment = claim["trial"], claim["experiment"]
+    command = gate_hardware_trial(trial, {**experiment, "command_hold": "linear"})
+    assert command.command_hold == "linear"
+    assert gate_hardware_trial(trial, experiment).command_hold == "zero"  # older servers
+    with pytest.raises(SafetyRefusal, match="unknown command hold 'cubic'"):
+        gate_hardware_trial(trial, {**experiment, "command_hold": "cubic"})

@@ -9,13 +9,14 @@ from fastapi.responses import FileResponse, Response
 
 from app.api.deps import (
     DbDep,
+    MeasurementId,
     Operator,
     PreviewsDep,
     Reader,
     ReadSession,
     SettingsDep,
+    TrialId,
     json_response,
-    run_write,
 )
 from app.service import artifacts, measurements, runs, trials
 from app.service.schemas import (
@@ -35,14 +36,14 @@ router = APIRouter(tags=["trials"])
 
 
 @router.get("/trials/{trial_id}", response_model=TrialDetail)
-def get_trial(trial_id: int, session: ReadSession, _: Reader) -> Response:
+def get_trial(trial_id: TrialId, session: ReadSession, _: Reader) -> Response:
     """A trial with its raw measurements and its audit trail."""
     return json_response(trials.read_trial(session, trial_id))
 
 
 @router.post("/trials/{trial_id}/measurements", status_code=201, response_model=MeasurementReceipt)
-async def add_measurements(
-    trial_id: int,
+def add_measurements(
+    trial_id: TrialId,
     body: MeasurementsIn,
     db: DbDep,
     actor: Operator,
@@ -54,18 +55,16 @@ async def add_measurements(
     every repeat and its audit trail, is ``GET /trials/{id}``). A replayed post (same key,
     same body) is a 409 ``duplicate_request`` carrying the first post's ``receipt``.
     """
-    receipt = await run_write(
-        db,
-        lambda s: measurements.add_measurements(
-            s, trial_id, body, idempotency_key=idempotency_key, actor=actor
-        ),
-    )
+    with db.write() as session:
+        receipt = measurements.add_measurements(
+            session, trial_id, body, idempotency_key=idempotency_key, actor=actor
+        )
     return json_response(receipt, status_code=201)
 
 
 @router.post("/measurements/{measurement_id}/withdraw", response_model=MeasurementReceipt)
 def withdraw_measurement(
-    measurement_id: int, body: WithdrawIn, db: DbDep, actor: Operator
+    measurement_id: MeasurementId, body: WithdrawIn, db: DbDep, actor: Operator
 ) -> MeasurementReceipt:
     """Withdraw a repeat with a reason: kept (and audited), no longer in the objective."""
     with db.write() as session:
@@ -76,7 +75,7 @@ def withdraw_measurement(
     "/measurements/{measurement_id}/supersede", status_code=201, response_model=MeasurementReceipt
 )
 def supersede_measurement(
-    measurement_id: int, body: SupersedeIn, db: DbDep, actor: Operator
+    measurement_id: MeasurementId, body: SupersedeIn, db: DbDep, actor: Operator
 ) -> Response:
     """Correct a repeat: the old value is kept, withdrawn with the reason; the new one counts."""
     with db.write() as session:
@@ -85,21 +84,21 @@ def supersede_measurement(
 
 
 @router.post("/trials/{trial_id}/fail")
-def fail(trial_id: int, body: ReasonIn, db: DbDep, actor: Operator) -> TrialRead:
+def fail(trial_id: TrialId, body: ReasonIn, db: DbDep, actor: Operator) -> TrialRead:
     """Mark a trial failed, with a reason (aborts it if running)."""
     with db.write() as session:
         return trials.fail(session, trial_id, body.reason, actor=actor)
 
 
 @router.post("/trials/{trial_id}/abandon")
-def abandon(trial_id: int, body: ReasonIn, db: DbDep, actor: Operator) -> TrialRead:
+def abandon(trial_id: TrialId, body: ReasonIn, db: DbDep, actor: Operator) -> TrialRead:
     """Abandon a trial: it never runs and is never suggested again."""
     with db.write() as session:
         return trials.abandon(session, trial_id, body.reason, actor=actor)
 
 
 @router.post("/trials/{trial_id}/resolve")
-def resolve(trial_id: int, body: ResolveIn, db: DbDep, actor: Operator) -> TrialRead:
+def resolve(trial_id: TrialId, body: ResolveIn, db: DbDep, actor: Operator) -> TrialRead:
     """Decide a needs_review trial: requeue, fail, complete or abandon."""
     with db.write() as session:
         return trials.resolve(session, trial_id, body, actor=actor)
@@ -107,7 +106,7 @@ def resolve(trial_id: int, body: ResolveIn, db: DbDep, actor: Operator) -> Trial
 
 @router.post("/trials/{trial_id}/confirm")
 def confirm(
-    trial_id: int, body: ConfirmIn, db: DbDep, settings: SettingsDep, actor: Operator
+    trial_id: TrialId, body: ConfirmIn, db: DbDep, settings: SettingsDep, actor: Operator
 ) -> TrialRead:
     """Confirm a hardware trial's exact schedule (by its hash) so a worker may run it.
 
@@ -119,14 +118,20 @@ def confirm(
 
 
 @router.post("/trials/{trial_id}/run")
-def run(trial_id: int, db: DbDep, settings: SettingsDep, actor: Operator) -> TrialRead:
+def run(trial_id: TrialId, db: DbDep, settings: SettingsDep, actor: Operator) -> TrialRead:
     """Simulate a queued sim trial in the service and record its result."""
-    return runs.run_trial(db, trial_id, actor=actor, artifacts_dir=settings.artifacts_dir)
+    return runs.run_trial(
+        db,
+        trial_id,
+        actor=actor,
+        artifacts_dir=settings.artifacts_dir,
+        lease_seconds=settings.lease_seconds,
+    )
 
 
 @router.post("/trials/{trial_id}/preview", status_code=202)
 def preview(
-    trial_id: int, db: DbDep, previews: PreviewsDep, settings: SettingsDep, actor: Operator
+    trial_id: TrialId, db: DbDep, previews: PreviewsDep, settings: SettingsDep, actor: Operator
 ) -> PreviewJobRead:
     """Start a sim rollout of exactly this trial's schedule; poll /api/previews/{job_id}.
 
@@ -141,9 +146,21 @@ def get_preview(job_id: str, previews: PreviewsDep, _: Reader) -> PreviewJobRead
     return previews.get(job_id)
 
 
-@router.get("/trials/{trial_id}/trajectory", response_model=None)
+@router.get(
+    "/trials/{trial_id}/trajectory",
+    response_model=None,
+    responses={
+        200: {
+            "description": "JSON: each array as nested lists; npz: the file, streamed",
+            "content": {
+                "application/json": {"schema": {"type": "object"}},
+                "application/octet-stream": {"schema": {"type": "string", "format": "binary"}},
+            },
+        }
+    },
+)
 def trajectory(
-    trial_id: int,
+    trial_id: TrialId,
     session: ReadSession,
     settings: SettingsDep,
     _: Reader,

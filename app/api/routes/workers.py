@@ -7,8 +7,9 @@ from typing import Any
 from fastapi import APIRouter
 from fastapi.responses import Response
 
-from app.api.deps import DbDep, SettingsDep, WorkerOrOperator, json_response
+from app.api.deps import DbDep, SettingsDep, TrialId, WorkerOrOperator, json_response
 from app.service import leases
+from app.service.artifacts import decode_npz_b64
 from app.service.schemas import ClaimIn, ClaimRead, LeaseRead, ResultIn, ResultRead
 
 router = APIRouter(tags=["workers"])
@@ -46,13 +47,16 @@ def heartbeat(
 
 @router.post("/trials/{trial_id}/result", response_model=ResultRead)
 def result(
-    trial_id: int,
+    trial_id: TrialId,
     body: ResultIn,
     db: DbDep,
     settings: SettingsDep,
     actor: WorkerOrOperator,
 ) -> dict[str, Any]:
     """Report what was executed and measured for a leased trial (idempotent per lease)."""
+    raw = None
+    if body.trajectory_npz_b64 is not None:  # unpacked and checked before taking the lock
+        raw = decode_npz_b64(body.trajectory_npz_b64, max_bytes=settings.max_body_bytes)
     with db.write() as session:
         return leases.report_result(
             session,
@@ -61,5 +65,5 @@ def result(
             actor=actor,
             artifacts_dir=settings.artifacts_dir,
             max_attempts=settings.max_attempts,
-            max_bytes=settings.max_body_bytes,
+            trajectory=raw,
         )

@@ -33,6 +33,8 @@ class DriverCommand:
         release_step: 1-based control step at whose end the gripper opens (throw), else None.
         step_s: seconds each row is held (5 s / H).
         nominal_pa: (12,) the resting pressures the robot starts from and vents back to, Pa.
+        command_hold: "zero" (each row held for its step) or "linear" (ramped from the
+            previous row over the step, from nominal at the start), as the experiment says.
     """
 
     trial_id: int
@@ -41,6 +43,7 @@ class DriverCommand:
     release_step: int | None
     step_s: float
     nominal_pa: np.ndarray
+    command_hold: str = "zero"
 
     @property
     def horizon(self) -> int:

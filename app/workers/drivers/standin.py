@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from app.policy import HardwareCeilings
+from app.policy import SIM_MAX_PRESSURE_PA, HardwareCeilings
 from app.workers.drivers.base import (
     DriverCommand,
     DriverError,
@@ -46,8 +46,6 @@ from app.workers.drivers.base import (
 )
 
 log = logging.getLogger(__name__)
-
-SIM_MAX_PRESSURE_PA = 275_790.0  # the simulator's command range is [0, 40 psi]
 
 
 def _as_bool(value: str | bool) -> bool:
@@ -260,6 +258,7 @@ class StandinDriver:
                     preset=self.preset,
                     record_hz=4.0 * self.tracker_hz,
                     params=self._sim_params(stiffness),
+                    command_hold=command.command_hold,
                 )
             except SimulationDiverged as exc:
                 return Execution(

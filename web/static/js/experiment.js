@@ -1,4 +1,5 @@
 import { api } from "./api.js";
+import { SIM_MAX_PRESSURE_PA } from "/api-schema.js";
 import { renderTrialActions } from "./actions.js";
 import { bestSoFar, relevance, scheduleHeatmap, slices } from "./plots.js";
 import { closeUnlessFor } from "./viz.js";
@@ -12,8 +13,9 @@ let version = null;
 let nextKey = null;
 let selectedId = null; // a trial the operator picked (e.g. from the awaiting-measurement list)
 
-function listOf(answer) {
-  return Array.isArray(answer) ? answer : (answer && (answer.items || answer.trials)) || [];
+/** How the experiment applies each schedule row (a ramped schedule is a different motion). */
+function holdText(e) {
+  return (e && e.command_hold) === "linear" ? "commands ramped over each step (linear hold)" : "commands held each step (zero hold)";
 }
 
 function say(message) {
@@ -21,21 +23,18 @@ function say(message) {
   if (message) setTimeout(() => { if ($("#exp-ok").textContent === message) $("#exp-ok").textContent = ""; }, 8000);
 }
 
+/** LimitsRead: nominal_pa (12 values), max_step_pa, source_pa; null limits: the sim range. */
 function limitsText(e) {
-  const nominal = e.limits_nominal_pa ?? e.nominal_pa ?? e.limits?.nominal_pa;
-  const step = e.limits_max_step_pa ?? e.max_step_pa ?? e.limits?.max_step_pa;
-  const source = e.limits_source_pa ?? e.source_pa ?? e.limits?.source_pa;
-  if (nominal === null || nominal === undefined) return "sim range 0–275.8 kPa";
-  const nom = Array.isArray(nominal) ? (new Set(nominal).size === 1 ? `${fmt(nominal[0] / 1000, 1)}` : nominal.map((v) => fmt(v / 1000, 0)).join("/")) : fmt(nominal / 1000, 1);
+  if (!e.limits) return `sim range 0–${fmt(SIM_MAX_PRESSURE_PA / 1000, 1)} kPa`;
+  const { nominal_pa: nominal, max_step_pa: step, source_pa: source } = e.limits;
+  const nom = new Set(nominal).size === 1 ? `${fmt(nominal[0] / 1000, 1)}` : nominal.map((v) => fmt(v / 1000, 0)).join("/");
   return `nominal ${nom} kPa ± ${fmt(step / 1000, 1)} kPa, source ${fmt(source / 1000, 1)} kPa`;
 }
 
 function boundsPa(e) {
-  const nominal = e.limits_nominal_pa ?? e.nominal_pa ?? e.limits?.nominal_pa;
-  const step = e.limits_max_step_pa ?? e.max_step_pa ?? e.limits?.max_step_pa;
-  if (nominal === null || nominal === undefined) return { lowerPa: 0, upperPa: 275790 };
-  const arr = Array.isArray(nominal) ? nominal : [nominal];
-  return { lowerPa: Math.min(...arr) - step, upperPa: Math.max(...arr) + step };
+  if (!e.limits) return { lowerPa: 0, upperPa: SIM_MAX_PRESSURE_PA };
+  const { nominal_pa: nominal, max_step_pa: step } = e.limits;
+  return { lowerPa: Math.min(...nominal) - step, upperPa: Math.max(...nominal) + step };
 }
 
 function incumbent() {
@@ -71,6 +70,7 @@ function renderHeader() {
   $("#exp-summary").textContent = [
     `${e.task} on ${e.target}`,
     `P = ${e.levels}, H = ${e.horizon}${e.with_release ? " + release step" : ""}`,
+    holdText(e),
     `${e.method}${e.acquisition ? ` (${e.acquisition}${e.kappa !== null && e.kappa !== undefined ? `, κ = ${e.kappa}` : ""})` : ""}, ${e.n_initial} initial, seed ${e.seed}`,
     `objective in ${e.objective_unit} from ${(e.objective_sources || []).join(" + ")}`,
     limitsText(e),
@@ -131,7 +131,7 @@ function renderNext() {
       ? `GP predicts ${fmtPm(t.predicted_mean, t.predicted_std)} (mean ± std)`
       : "No GP prediction for this trial (random initial trial, or not a BO experiment).",
     el("div", { id: "next-preview-summary", class: "small" }));
-  scheduleHeatmap($("#heatmap"), t.pressure_schedule_pa, { title: "pressure schedule (kPa): 12 chambers × H steps", releaseStep: t.release_step, ...boundsPa(experiment) });
+  scheduleHeatmap($("#heatmap"), t.pressure_schedule_pa, { title: `pressure schedule (kPa): 12 chambers × H steps, ${holdText(experiment)}`, releaseStep: t.release_step, ...boundsPa(experiment) });
   const best = incumbent();
   renderTrialActions($("#trial-actions"), t, {
     experiment, incumbentId: best && best.id !== t.id ? best.id : null, onChange: (msg) => { say(msg); if (selectedId === t.id) selectedId = null; refresh(true); },
@@ -179,8 +179,8 @@ async function refresh(force = false) {
       api("GET", `/api/experiments/${experimentId}/trials`),
     ]);
     experiment = e;
-    trials = listOf(t);
-    version = e.version ?? version;
+    trials = t;
+    version = e.version;
     renderHeader();
     renderTable();
     bestSoFar($("#best-plot"), trials);
@@ -196,12 +196,7 @@ async function refresh(force = false) {
 }
 
 async function currentVersion() {
-  try {
-    const ev = await api("GET", `/api/experiments/${experimentId}/version`);
-    if (ev && typeof ev === "object" && ev.version !== undefined) return ev.version;
-  } catch { /* fall through to the experiment's own version */ }
-  const e = await api("GET", `/api/experiments/${experimentId}`);
-  return e.version ?? e.updated_at;
+  return (await api("GET", `/api/experiments/${experimentId}/version`)).version;
 }
 
 async function poll() {
@@ -226,8 +221,7 @@ function wireActions() {
     try {
       const n = Number($("#suggest-n").value);
       if (!Number.isInteger(n) || n < 1 || n > 100) { showError("#exp-error", "n must be a whole number from 1 to 100."); return; }
-      const answer = await api("POST", `/api/experiments/${experimentId}/suggest`, { body: { n } });
-      const made = listOf(answer);
+      const made = await api("POST", `/api/experiments/${experimentId}/suggest`, { body: { n } });
       say(made.length ? `Suggested trial ${made.map((t) => t.index).join(", ")}.` : "No new trial suggested.");
       selectedId = null;
       await refresh(true);
@@ -253,7 +247,7 @@ function wireActions() {
     try { body = JSON.parse($("#import-json").value); } catch (err) { showError("#exp-error", `Not valid JSON: ${err.message}`); return; }
     try {
       const answer = await api("POST", `/api/experiments/${experimentId}/import`, { body });
-      say(`Imported ${answer.imported ?? answer.count ?? (Array.isArray(answer) ? answer.length : "the")} observations.`);
+      say(`Imported ${answer.length} observations.`);
       $("#import-form").hidden = true;
       await refresh(true);
     } catch (err) { showError("#exp-error", err); }

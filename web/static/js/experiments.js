@@ -1,10 +1,6 @@
 import { api } from "./api.js";
 import { $, badge, el, fmt, fmtTime, requireLogin, showError } from "./ui.js";
 
-function listOf(answer) {
-  return Array.isArray(answer) ? answer : (answer && (answer.items || answer.experiments)) || [];
-}
-
 /** A count that needs the operator: a link to the experiment, highlighted when not zero. */
 function needs(exp, n, what) {
   return el("td", { class: n ? "needs" : "muted", dataset: { what } },
@@ -12,7 +8,7 @@ function needs(exp, n, what) {
 }
 
 function row(exp) {
-  const counts = exp.status_counts || {};
+  const counts = exp.status_counts;
   const done = counts.completed ?? 0;
   return el("tr", { class: "clickable", dataset: { id: exp.id }, onclick: () => { location.href = `/experiments/${exp.id}`; } },
     el("td", {}, exp.id),
@@ -21,7 +17,7 @@ function row(exp) {
     el("td", {}, exp.task),
     el("td", {}, exp.target),
     needs(exp, counts.awaiting_confirmation ?? 0, "awaiting_confirmation"),
-    needs(exp, exp.n_awaiting_measurement ?? 0, "awaiting_measurement"),
+    needs(exp, exp.n_awaiting_measurement, "awaiting_measurement"),
     el("td", { class: "done" }, `${done} / ${exp.budget ?? "∞"}`),
     el("td", {}, fmt(exp.best_objective)),
     el("td", {}, fmtTime(exp.created_at)));
@@ -32,7 +28,7 @@ let lastKey = null;
 async function load() {
   const tbody = $("#experiments-table tbody");
   try {
-    const experiments = listOf(await api("GET", "/api/experiments"));
+    const experiments = await api("GET", "/api/experiments");
     const key = JSON.stringify(experiments.map((e) => [e.id, e.version, e.status, e.n_awaiting_measurement, e.status_counts]));
     if (key !== lastKey) {
       lastKey = key;

@@ -1,4 +1,5 @@
 import { api } from "./api.js";
+import { RELEASE_TASKS } from "/api-schema.js";
 import { $, clearFieldErrors, el, requireLogin, showFieldErrors } from "./ui.js";
 
 const form = $("#experiment-form");
@@ -9,8 +10,9 @@ function updateDependent() {
   $("#limits-fieldset").disabled = !hw;
   $("#limits-fieldset").classList.toggle("muted", !hw);
   const h = parseInt($("#f-horizon").value, 10) || 10;
-  const d = h + (task === "throw" ? 1 : 0);
-  $("#f-dim-note").textContent = `θ has D = ${d} dimensions${task === "throw" ? " (H steps + the release step)" : ""}; the paper starts with D + 1 = ${d + 1} random trials.`;
+  const release = RELEASE_TASKS.includes(task);
+  const d = h + (release ? 1 : 0);
+  $("#f-dim-note").textContent = `θ has D = ${d} dimensions${release ? " (H steps + the release step)" : ""}; the paper starts with D + 1 = ${d + 1} random trials.`;
   const method = $("#f-method").value;
   const bo = method.startsWith("bo-");
   $("#f-acquisition").disabled = !bo;
@@ -27,7 +29,7 @@ for (const id of ["#f-task", "#f-horizon"]) {
   $(id).addEventListener("change", () => {
     if (!initialTouched) {
       const h = parseInt($("#f-horizon").value, 10) || 10;
-      $("#f-n_initial").value = h + ($("#f-task").value === "throw" ? 1 : 0) + 1;
+      $("#f-n_initial").value = h + (RELEASE_TASKS.includes($("#f-task").value) ? 1 : 0) + 1;
     }
   });
 }
@@ -55,9 +57,10 @@ function collect() {
     name: $("#f-name").value.trim(),
     task, target,
     sim_preset: $("#f-sim_preset").value,
+    command_hold: $("#f-command_hold").value,
     levels: numberField("#f-levels", "levels", errors, { integer: true }),
     horizon,
-    with_release: task === "throw",
+    with_release: RELEASE_TASKS.includes(task),
     method: $("#f-method").value,
     acquisition: $("#f-acquisition").disabled ? null : ($("#f-acquisition").value || null),
     kappa: $("#f-kappa").disabled ? null : numberField("#f-kappa", "kappa", errors),

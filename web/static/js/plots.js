@@ -64,10 +64,8 @@ export function slices(node, sl, incumbent, lengthscales = null) {
   const data = [];
   const order = lengthscales ? lengthscales.map((l, i) => [l, i]).sort((a, b) => a[0] - b[0]).map((p) => p[1]) : [];
   const shown = new Set(order.slice(0, 3));
-  sl.forEach((s, i) => {
-    const x = s.x || s.grid || s.theta;
-    const mean = s.mean; const std = s.std || mean.map(() => 0);
-    const dim = s.dim ?? s.dimension ?? i;
+  sl.forEach((s) => {
+    const { theta: x, mean, std, dim } = s; // SliceRead
     const visible = !lengthscales || shown.has(dim) ? true : "legendonly";
     data.push({ type: "scatter", mode: "lines", name: `θ${dim}`, x, y: mean, legendgroup: `d${dim}`, visible,
       hovertemplate: `θ${dim}=%{x:.3f}: mean %{y:.3g}<extra></extra>` });

@@ -17,7 +17,8 @@ function renderFacts(t, e) {
   document.title = `Trial ${t.index} · handful`;
   $("#trial-status").replaceChildren(t.status.replace(/_/g, " "));
   $("#trial-status").className = `badge ${t.status}`;
-  $("#trial-summary").textContent = `${e.task} on ${e.target}; source: ${t.source || "?"}${t.note ? `; note: ${t.note}` : ""}`;
+  const hold = e.command_hold === "linear" ? "commands ramped over each step (linear hold)" : "commands held each step (zero hold)";
+  $("#trial-summary").textContent = `${e.task} on ${e.target}, ${hold}; source: ${t.source || "?"}${t.note ? `; note: ${t.note}` : ""}`;
   $("#trial-facts").replaceChildren(
     ...fact("Objective ± SEM", fmtPm(t.objective, t.objective_sem)),
     ...fact("Measurements", String(t.n_measurements ?? 0)),
@@ -97,9 +98,9 @@ function correctControls(t, m) {
 }
 
 function renderAudit(t) {
-  const entries = t.audit || t.audit_trail || t.audit_log || [];
+  const entries = t.audit;
   const rows = entries.map((a) => el("tr", {},
-    el("td", {}, fmtTime(a.at || a.created_at)), el("td", {}, a.actor || "—"), el("td", {}, a.action),
+    el("td", {}, fmtTime(a.at)), el("td", {}, a.actor || "—"), el("td", {}, a.action),
     el("td", {}, a.before || a.after ? `${a.before ?? "—"} → ${a.after ?? "—"}` : ""),
     el("td", { class: "small" }, a.detail ? JSON.stringify(a.detail) : "")));
   $("#audit-table tbody").replaceChildren(...rows);

@@ -66,22 +66,19 @@ export async function openPreview(trial, incumbentId) {
   ($("#next-card") || card()).scrollIntoView({ block: "start" });
   try {
     const { job_id: jobId } = await api("POST", `/api/trials/${trial.id}/preview`);
-    const started = Date.now();
     let job;
     for (;;) {
       if (gen !== generation) return;
       job = await api("GET", `/api/previews/${jobId}`);
-      const status = job.status;
-      if (["failed", "error"].includes(status)) throw new Error(`the preview failed: ${job.error || job.detail || "no reason given"}`);
-      if (["done", "completed", "succeeded", "finished"].includes(status)) break;
-      const f = typeof job.progress === "number" ? job.progress : Math.min(0.9, (Date.now() - started) / 20000);
-      progress(0.05 + 0.85 * f, `${status || "running"}: simulating 5 s of motion… ${Math.round(f * 100)}%`);
+      // PreviewJobRead.status: queued | running | done | error
+      if (job.status === "error") throw new Error(`the preview failed: ${job.error || "no reason given"}`);
+      if (job.status === "done") break;
+      progress(0.05 + 0.85 * job.progress, `${job.status}: simulating 5 s of motion… ${Math.round(job.progress * 100)}%`);
       await sleep(400);
     }
-    const result = job.result || job;
-    const hits = result.bend_limit_hits || [];
+    const hits = job.bend_limit_hits || [];
     const words = [
-      `Sim preview of trial ${trial.index}: predicted max tip speed ${fmt(result.predicted_tip_speed)} m/s.`,
+      `Sim preview of trial ${trial.index}: predicted max tip speed ${fmt(job.predicted_tip_speed)} m/s.`,
       hits.length ? `WARNING: joint${hits.length > 1 ? "s" : ""} ${hits.join(", ")} would reach the bend limit.` : "No joint reaches its bend limit.",
     ];
     $("#next-preview-summary")?.replaceChildren(words.join(" "));

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.optim import sweep
+from app import bench
 
 HANDFUL = shutil.which("handful") or str(Path(sys.executable).with_name("handful"))
 
@@ -34,7 +34,7 @@ def test_cli_sweep_writes_results_summary_and_curves_and_skips_cached_runs(tmp_p
     assert first.returncode == 0, first.stderr
     with open(out / "results.csv", newline="") as fh:
         reader = csv.DictReader(fh)
-        assert tuple(reader.fieldnames) == sweep.RESULT_COLUMNS
+        assert tuple(reader.fieldnames) == bench.RESULT_COLUMNS
         rows = list(reader)
     assert len(rows) == 2 * 2 * 4  # methods × seeds × trials
     runs: dict[tuple[str, str], list[dict]] = {}
@@ -47,9 +47,14 @@ def test_cli_sweep_writes_results_summary_and_curves_and_skips_cached_runs(tmp_p
         best = np.array([float(r["best_so_far"]) for r in run_rows])
         np.testing.assert_allclose(best, np.maximum.accumulate(obj), rtol=1e-5)
         assert all(float(r["wall_s"]) > 0 for r in run_rows)
+        # by default the paper-matching simulator settings, named in every row
+        assert {(r["preset"], r["command_hold"], r["objective_rule"]) for r in run_rows} == {
+            ("fast", "linear", "published")
+        }
 
     summary = (out / "summary.md").read_text()
     assert "## hammer: best objective so far, mean ± std over 2 seeds" in summary
+    assert "(sim preset fast, command hold linear, objective published)" in summary
     assert "| Method | Trials | P=2 |" in summary
     for method in ("random", "cem"):
         for budget in (2, 4):
@@ -71,35 +76,51 @@ def test_cli_sweep_writes_results_summary_and_curves_and_skips_cached_runs(tmp_p
         assert list(csv.DictReader(fh)) == rows
 
 
+def test_the_hold_and_rule_reach_the_episodes_and_keep_separate_caches(tmp_path):
+    held = bench.RunSpec("random", "throw", 2, 0, 3, "fast")
+    ramped = bench.RunSpec(
+        "random", "throw", 2, 0, 3, "fast", command_hold="linear", objective_rule="published"
+    )
+    assert held.key != ramped.key
+    rows_held, rows_ramped = bench.run_one(held, tmp_path), bench.run_one(ramped, tmp_path)
+    assert [r["theta"] for r in rows_held] == [r["theta"] for r in rows_ramped]  # same θ
+    f = bench.objective_fn("throw", 2, "fast", "linear", "published")
+    assert [r["objective"] for r in rows_ramped] == [f(np.array(r["theta"])) for r in rows_held]
+    assert [r["objective"] for r in rows_ramped] != [r["objective"] for r in rows_held]
+    cached = bench.cached_rows(ramped, tmp_path)
+    assert cached is not None
+    assert [r["objective"] for r in cached] == [r["objective"] for r in rows_ramped]
+
+
 def test_an_interrupted_or_extended_run_resumes_to_the_same_result(tmp_path):
-    spec5 = sweep.RunSpec("cem", "hammer", 2, 0, 5, "fast")
-    spec3 = sweep.RunSpec("cem", "hammer", 2, 0, 3, "fast")
-    direct = sweep.run_one(spec5, tmp_path / "a")
-    sweep.run_one(spec3, tmp_path / "b")  # a shorter finished run ...
-    extended = sweep.run_one(spec5, tmp_path / "b")  # ... extended by two trials
+    spec5 = bench.RunSpec("cem", "hammer", 2, 0, 5, "fast")
+    spec3 = bench.RunSpec("cem", "hammer", 2, 0, 3, "fast")
+    direct = bench.run_one(spec5, tmp_path / "a")
+    bench.run_one(spec3, tmp_path / "b")  # a shorter finished run ...
+    extended = bench.run_one(spec5, tmp_path / "b")  # ... extended by two trials
     assert [r["theta"] for r in extended] == [r["theta"] for r in direct]
     assert [r["objective"] for r in extended] == [r["objective"] for r in direct]
     # An interrupted run: a part file with its first two trials.
     part_dir = tmp_path / "c" / "runs"
     part_dir.mkdir(parents=True)
-    sweep.write_part(part_dir / f"{spec5.key}.part.csv", direct[:2])
-    resumed = sweep.run_one(spec5, tmp_path / "c")
+    bench.write_part(part_dir / f"{spec5.key}.part.csv", direct[:2])
+    resumed = bench.run_one(spec5, tmp_path / "c")
     assert [r["objective"] for r in resumed] == [r["objective"] for r in direct]
     assert not (part_dir / f"{spec5.key}.part.csv").exists()
-    assert len(sweep.read_run(part_dir / f"{spec5.key}.csv")) == 5
+    assert len(bench.read_run(part_dir / f"{spec5.key}.csv")) == 5
 
 
 def test_summary_marks_the_best_mean_and_reports_each_budget():
     rows = []
     for method, base in (("a", 1.0), ("b", 2.0)):
         for seed in range(2):
-            spec = sweep.RunSpec(method, "throw", 5, seed, 3)
+            spec = bench.RunSpec(method, "throw", 5, seed, 3)
             objs = [base + seed, base, base + 2 * seed + 0.5]
             trial_rows = [
                 {"trial": i + 1, "objective": v, "wall_s": 0.1} for i, v in enumerate(objs)
             ]
-            rows += sweep.result_rows(spec, trial_rows)
-    text = sweep.summary_markdown(rows, [1, 3])
+            rows += bench.result_rows(spec, trial_rows)
+    text = bench.summary_markdown(rows, [1, 3])
     assert "| a | 1 | 1.500 ± 0.500 |" in text
     assert "| b | 1 | **2.500 ± 0.500** |" in text
     assert "| b | 3 | **3.500 ± 1.000** |" in text
@@ -110,8 +131,8 @@ def _rows_of(finals: dict[str, list[float]], task: str = "hammer") -> list[dict]
     rows = []
     for method, values in finals.items():
         for seed, v in enumerate(values):
-            spec = sweep.RunSpec(method, task, 5, seed, 2)
-            rows += sweep.result_rows(
+            spec = bench.RunSpec(method, task, 5, seed, 2)
+            rows += bench.result_rows(
                 spec,
                 [
                     {"trial": 1, "objective": v - 1.0, "wall_s": 0.1},
@@ -126,16 +147,16 @@ def test_head_to_head_gives_the_difference_and_welch_p():
 
     ref, near, far = [3.0, 3.2, 2.9, 3.1], [3.1, 2.8, 3.0, 3.3], [1.0, 1.2, 0.9, 1.1, 1.0]
     rows = _rows_of({"bo-x": ref, "near": near, "far": far, "solo": [9.0]})
-    pairs = {h["peer"]: h for h in sweep.head_to_head(rows, 2, "bo-x")}
+    pairs = {h["peer"]: h for h in bench.head_to_head(rows, 2, "bo-x")}
     assert set(pairs) == {"near", "far", "solo"}
     assert pairs["far"]["diff"] == pytest.approx(np.mean(ref) - np.mean(far))
     assert pairs["far"]["p"] == pytest.approx(ttest_ind(ref, far, equal_var=False).pvalue)
     assert pairs["far"]["p"] < 1e-4 < 0.3 < pairs["near"]["p"]
     assert pairs["solo"]["p"] is None and pairs["solo"]["peer_n"] == 1
-    text = sweep.summary_markdown(rows, [1, 2], reference="bo-x")
+    text = bench.summary_markdown(rows, [1, 2], reference="bo-x")
     assert "## bo-x against each peer after 2 trials" in text
     assert "| hammer | 5 | far | 3.050 (4) | 1.040 (5) | +2.010 |" in text
-    assert sweep.head_to_head(rows, 2, "missing") == []
+    assert bench.head_to_head(rows, 2, "missing") == []
 
 
 @pytest.mark.parametrize(
@@ -145,6 +166,8 @@ def test_head_to_head_gives_the_difference_and_welch_p():
         (["--budget", "0"], "budget must be ≥ 1 trial, got 0"),
         (["--levels", "1"], "levels (P) must be ≥ 2, got 1"),
         (["--preset", "ultra"], "unknown --preset 'ultra'"),
+        (["--command-hold", "cubic"], "unknown --command-hold 'cubic'; choose from zero, linear"),
+        (["--objective", "best"], "unknown --objective 'best'; choose from paper, published"),
     ],
 )
 def test_bad_arguments_exit_nonzero_with_one_clear_line(tmp_path, args, message):
@@ -159,7 +182,7 @@ def test_bad_arguments_exit_nonzero_with_one_clear_line(tmp_path, args, message)
 def test_a_tiny_sweep_on_local_ray_agrees_with_the_local_backend(tmp_path):
     import ray
 
-    specs = sweep.make_specs(
+    specs = bench.make_specs(
         methods=["random", "cem"],
         tasks=["hammer"],
         levels=[2],
@@ -167,17 +190,17 @@ def test_a_tiny_sweep_on_local_ray_agrees_with_the_local_backend(tmp_path):
         seeds=2,
         preset="fast",
     )
-    local = sweep.run_sweep(specs, tmp_path / "local", workers=2, progress=False)
+    local = bench.run_sweep(specs, tmp_path / "local", workers=2, progress=False)
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
-        remote = sweep.run_sweep(specs, tmp_path / "ray", backend="ray", progress=False)
+        remote = bench.run_sweep(specs, tmp_path / "ray", backend="ray", progress=False)
     finally:
         ray.shutdown()
     for s in specs:
         assert [r["objective"] for r in remote[s]] == [r["objective"] for r in local[s]]
         assert [r["theta"] for r in remote[s]] == [r["theta"] for r in local[s]]
-    a = sweep.write_outputs(tmp_path / "local", specs, local, [3])
-    b = sweep.write_outputs(tmp_path / "ray", specs, remote, [3])
+    a = bench.write_outputs(tmp_path / "local", specs, local, [3])
+    b = bench.write_outputs(tmp_path / "ray", specs, remote, [3])
     strip = [{k: v for k, v in r.items() if k != "wall_s"} for r in a]
     assert strip == [{k: v for k, v in r.items() if k != "wall_s"} for r in b]
 
@@ -187,17 +210,17 @@ def test_a_cache_line_cut_short_is_dropped_on_resume(tmp_path):
         {"trial": i + 1, "objective": float(i), "wall_s": 0.1, "theta": [0.5]} for i in range(3)
     ]
     path = tmp_path / "x.part.csv"
-    sweep.write_part(path, rows)
+    bench.write_part(path, rows)
     with open(path, "a") as fh:
         fh.write('4,1.5,0.1,"[0.2')  # interrupted mid-write
-    assert sweep.read_run(path) == rows
+    assert bench.read_run(path) == rows
 
 
 def test_curves_tell_a_dozen_methods_apart(tmp_path, monkeypatch):
     """Past tab10's ten colours each method still gets its own colour and dash pattern."""
     from matplotlib.figure import Figure
 
-    from app.optim.sweep import plot_curves
+    from app.bench import plot_curves
 
     saved: list[Figure] = []
     real_savefig = Figure.savefig

@@ -2,7 +2,7 @@
 corrections (withdrawn / superseded, never deleted); the sources an objective is made of.
 
 Revision ID: operator1
-Revises: 0002
+Revises: harden1
 Create Date: 2026-11-29 17:00:00
 """
 
@@ -15,7 +15,7 @@ from alembic import op
 
 
 revision: str = "operator1"
-down_revision: str | None = "0002"
+down_revision: str | None = "harden1"
 branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None
 

@@ -1,0 +1,132 @@
+"""`handful bench paper`: the paper's grid, run (or resumed) and written as the paper's tables
+with handful's number beside each of the paper's."""
+
+from __future__ import annotations
+
+import re
+import shlex
+import sys
+from pathlib import Path
+
+import typer
+
+from app.cli.bench_optim import _fail, sim_settings
+
+
+def paper(
+    cells: list[str] = typer.Option(
+        None,
+        "--cells",
+        help="which cells of the grid, e.g. P=7, P=2,5, trials<=500, task=throw, "
+        "method=bo-lei,cem (terms are ANDed: repeat --cells or separate terms by spaces; "
+        "default: the whole grid)",
+    ),
+    trials: str = typer.Option(
+        None, "--trials", help="trial counts, e.g. 100 or 100,500 (same as --cells trials=...)"
+    ),
+    seeds: int = typer.Option(5, "--seeds", help="seeds per cell (0 .. N-1; the paper ran 5)"),
+    out: Path = typer.Option(Path("bench_out/paper"), "--out", help="output (and cache) folder"),
+    bo_fit: str = typer.Option(
+        "warm",
+        "--bo-fit",
+        help="BO's GP fits: warm (from the last full fit's hyperparameters, a full refit every "
+        "10 trials or 10 %% of N) or full (the paper: from scratch after every trial)",
+    ),
+    preset: str = typer.Option(
+        None, "--preset", help="simulator preset: reference, fast (default: the paper-matching)"
+    ),
+    command_hold: str = typer.Option(
+        None,
+        "--command-hold",
+        help="zero (each row held) or linear (ramped over each step); default: paper-matching",
+    ),
+    objective: str = typer.Option(
+        None, "--objective", help="scoring rule: paper or published; default: paper-matching"
+    ),
+    backend: str = typer.Option("local", "--backend", help="local (process pool) or ray"),
+    address: str = typer.Option(None, "--address", help="Ray cluster address (with --backend ray)"),
+    workers: int = typer.Option(0, "--workers", help="parallel runs (default: all cores)"),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="progress bars and ETA"),
+    cached_only: bool = typer.Option(
+        False, "--cached-only", help="run nothing: write paper.md from the runs stored in DIR"
+    ),
+) -> None:
+    """Run the paper's grid (BO-UCB, BO-LEI, CEM and random search on throwing and hammering,
+    P in 2, 5, 7, 10, after 100 / 500 / 10K trials; plus handful's default method) and write
+    DIR/paper.md (the paper's tables with handful's numbers beside them), DIR/results.csv and
+    DIR/paper_curves.png. Finished runs are cached: run again to resume or extend."""
+    from app.bench import paper as grid_mod
+    from app.bench import run_sweep, stored_rows
+    from app.bench.report import plot_curves, write_results_csv
+    from app.bench.stats import result_rows
+    from app.optim import METHODS, SettingsError
+
+    # Terms are ANDed: repeat --cells or separate them by spaces or ';' (commas list values).
+    terms = [t for raw in cells or [] for t in re.split(r"[\s;&]+", raw) if t]
+    if trials:
+        terms.append(f"trials={trials}")
+    preset, command_hold, objective = sim_settings(preset, command_hold, objective)
+    if bo_fit not in ("warm", "full"):
+        _fail(f"--bo-fit must be warm or full, got {bo_fit!r}")
+    if backend not in ("local", "ray"):
+        _fail(f"--backend must be local or ray, got {backend!r}")
+    if address and backend != "ray":
+        _fail("--address needs --backend ray")
+    if workers < 0:
+        _fail(f"--workers must be ≥ 0, got {workers}")
+    from app.sim import PRESETS
+
+    if preset not in PRESETS:
+        _fail(f"unknown --preset {preset!r}; choose from {', '.join(PRESETS)}")
+    try:
+        for t in terms:
+            _, _, values = grid_mod.parse_term(t)
+            missing = [v for v in values if str(v).startswith("redq") and v not in METHODS]
+            if missing:
+                _fail(f"{missing[0]} is not in this build of handful yet (issue 13)")
+        chosen = grid_mod.select(grid_mod.grid(METHODS), terms)
+        if not chosen:
+            _fail(f"no cell of the paper's grid matches {' '.join(terms)}")
+        specs = grid_mod.run_specs(
+            chosen,
+            seeds=seeds,
+            preset=preset,
+            command_hold=command_hold,
+            objective_rule=objective,
+            bo_settings={"fit_mode": bo_fit},
+        )
+    except SettingsError as exc:
+        _fail(str(exc))
+    if cached_only:
+        runs = {s: r for s in specs if (r := stored_rows(s, out))}
+        if not runs:
+            _fail(f"no runs of these cells stored in {out}")
+    else:
+        n_trials = sum(s.budget for s in specs)
+        typer.echo(f"{len(chosen)} cells → {len(specs)} runs, {n_trials:,} trials; cache {out}")
+        runs = run_sweep(
+            specs, out, backend=backend, address=address, workers=workers or None, progress=progress
+        )
+    rows = [r for s in specs if s in runs for r in result_rows(s, runs[s])]
+    out.mkdir(parents=True, exist_ok=True)
+    write_results_csv(out / "results.csv", rows)
+    header = [
+        f"Simulator preset `{preset}`, command hold `{command_hold}`, scoring rule "
+        f"`{objective}`; BO GP fits `{bo_fit}`; {seeds} seeds asked per cell; std over seeds "
+        "with ddof 0.",
+        "",
+        "Command: `handful bench paper "
+        + shlex.join(sys.argv[3:] if len(sys.argv) > 3 else [])
+        + "`",
+    ]
+    text = grid_mod.paper_markdown(rows, chosen, header=header, available=METHODS)
+    (out / "paper.md").write_text(text)
+    if rows:
+        plot_curves(rows, out / "paper_curves.png")
+    typer.echo(text)
+    typer.echo(f"wrote {out / 'paper.md'}, {out / 'results.csv'}, {out / 'paper_curves.png'}")
+
+
+def register(bench_app: typer.Typer) -> None:
+    """Add this benchmark to the `bench` group."""
+    bench_app.command("paper")(paper)

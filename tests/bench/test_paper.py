@@ -1,0 +1,145 @@
+"""`handful bench paper`: the paper's grid, cell filters, runs per cell, and paper.md."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+from app.bench import paper
+from app.bench.stats import result_rows
+from app.optim import DEFAULT_METHOD, SettingsError
+
+from .test_sweep import handful
+
+
+def test_the_grid_holds_every_number_of_the_papers_two_tables():
+    cells = paper.grid(available=())
+    table_cells = [c for c in cells if c.method in paper.PAPER_METHODS]
+    # 2 tasks × 4 P × (BO-UCB 2 + BO-LEI 2 + CEM 3 + random 3 trial counts)
+    assert len(table_cells) == 2 * 4 * 10
+    assert all(paper.paper_value(c.task, c.method, c.levels, c.trials) for c in table_cells)
+    assert paper.paper_value("throw", "bo-lei", 7, 500) == (40.878, 1.375)
+    assert paper.paper_value("hammer", "random", 10, 10_000) == (2.281, 0.303)
+    assert {c.method for c in cells} == {*paper.PAPER_METHODS, DEFAULT_METHOD}  # no REDQ here
+    with_redq = paper.grid(available=("redq", "redq-joints"))
+    assert len(with_redq) - len(cells) == 2 * 2 * 3  # tasks × agents × (250, 500, 10K)
+
+
+def test_cell_filters_are_anded_and_check_the_grid():
+    cells = paper.select(paper.grid(available=()), ["P=7", "trials<=500"])
+    assert {c.levels for c in cells} == {7} and {c.trials for c in cells} == {100, 500}
+    assert len(cells) == 2 * 5 * 2  # tasks × methods (4 + default) × trial counts
+    some = paper.select(paper.grid(available=()), ["P=2,5", "method=cem,random", "task=hammer"])
+    assert {(c.levels, c.method) for c in some} == {
+        (p, m) for p in (2, 5) for m in ("cem", "random")
+    }
+    assert {c.trials for c in some} == {100, 500, 10_000}
+    assert paper.select(paper.grid(available=()), ["trials=10K", "method=bo-lei"]) == []
+
+
+@pytest.mark.parametrize(
+    ("term", "message"),
+    [
+        ("P=1", "P=1 is not in the paper's grid"),
+        ("trials=20000", "nothing above 10K"),
+        ("trials<=50K", "nothing above 10K"),
+        ("trials=200", "not in the paper's grid"),
+        ("method=sgd", "unknown method 'sgd'"),
+        ("task=juggle", "not in the paper's tables"),
+        ("P~7", "cannot read the cell filter"),
+        ("P=two", "whole numbers"),
+    ],
+)
+def test_bad_cells_get_one_clear_line(term, message):
+    with pytest.raises(SettingsError, match=re.escape(message)):
+        paper.parse_term(term)
+
+
+def test_runs_share_cells_and_bo_settings_key_their_caches():
+    cells = paper.select(paper.grid(available=()), ["P=2", "task=throw", "method=bo-lei,cem"])
+    sim = {"preset": "fast", "command_hold": "linear", "objective_rule": "published"}
+    specs = paper.run_specs(cells, seeds=2, **sim, bo_settings={"fit_mode": "warm"})
+    budgets = {(s.method, s.seed): s.budget for s in specs}
+    assert budgets == {
+        ("bo-lei", 0): 500,
+        ("bo-lei", 1): 500,
+        ("cem", 0): 10_000,
+        ("cem", 1): 10_000,
+    }
+    bo = next(s for s in specs if s.method == "bo-lei")
+    cem = next(s for s in specs if s.method == "cem")
+    assert bo.settings == {"fit_mode": "warm"} and cem.settings == {}
+    assert (cem.command_hold, cem.objective_rule) == ("linear", "published")
+    full = paper.run_specs(cells, seeds=1, **sim, bo_settings={"fit_mode": "full"})
+    assert next(s for s in full if s.method == "bo-lei").key != bo.key  # never mixed
+    assert next(s for s in full if s.method == "cem").key == cem.key  # shared: same runs
+
+
+def _rows(method: str, task: str, levels: int, finals: list[float], n: int) -> list[dict]:
+    """Result rows of one run per value in ``finals``: flat at 0 then ``final`` from trial n/2."""
+    from app.bench import RunSpec
+
+    out = []
+    for seed, final in enumerate(finals):
+        raw = [
+            {"trial": t, "objective": (final if t >= n // 2 else 0.0), "wall_s": 0.5, "theta": []}
+            for t in range(1, n + 1)
+        ]
+        out += result_rows(RunSpec(method, task, levels, seed, n), raw)
+    return out
+
+
+def test_paper_md_sets_each_number_beside_the_papers_and_marks_two_sigma_gaps():
+    # Paper, throw, random, P=2, 100 trials: 27.435 ± 1.349. Ours 28.0 (inside), P=7 ours
+    # 30.0 against 19.167 ± 1.795 (6 σ away), hammer untouched.
+    rows = _rows("random", "throw", 2, [27.5, 28.5], 100) + _rows("random", "throw", 7, [30.0], 100)
+    chosen = paper.select(paper.grid(available=()), ["method=random", "task=throw", "trials=100"])
+    text = paper.paper_markdown(rows, chosen, header=["preset X"], available=())
+    line = next(ln for ln in text.splitlines() if ln.startswith("| Random search | 100 |"))
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    assert cells[2] == "**28.00 ± 0.50** (2)" and cells[3] == "27.43 ± 1.35"
+    assert cells[6] == "**30.00 ± 0.00** (1) ⚠" and cells[7] == "19.17 ± 1.79"
+    assert cells[4] == "*unfinished*"  # P=5 asked for, not run
+    later = next(ln for ln in text.splitlines() if ln.startswith("| Random search | 500 |"))
+    assert "*not run*" in later and "**" not in later  # nothing extrapolated to 500 trials
+    assert "*not in this build*" in text  # REDQ
+    assert "| throw | random | 2 | 100 | 2 | 50.0 |" in text  # measured cost: 100 × 0.5 s
+
+
+def test_cli_refuses_bad_cells_with_one_line(tmp_path):
+    for args, message in (
+        (["--cells", "P=1"], "P=1 is not in the paper's grid"),
+        (["--cells", "method=sgd"], "unknown method 'sgd'"),
+        (["--trials", "20000"], "nothing above 10K"),
+        (["--cells", "method=redq"], "redq is not in this build"),
+        (["--bo-fit", "fast"], "--bo-fit must be warm or full"),
+        (["--command-hold", "cubic"], "unknown --command-hold 'cubic'"),
+    ):
+        res = handful("bench", "paper", *args, "--out", str(tmp_path / "o"), cwd=tmp_path)
+        assert res.returncode == 2, (args, res.stderr)
+        assert message in res.stderr and len(res.stderr.strip().splitlines()) == 1, res.stderr
+        assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow
+def test_cli_runs_a_slice_writes_paper_md_and_resumes_from_its_cache(tmp_path):
+    out = tmp_path / "paper"
+    args = ["bench", "paper", "--cells", "P=2 task=hammer method=random", "--trials", "100"]
+    args += ["--seeds", "2", "--preset", "fast", "--out", str(out), "--workers", "2"]
+    first = handful(*args, "--no-progress", cwd=tmp_path)
+    assert first.returncode == 0, first.stderr
+    text = (out / "paper.md").read_text()
+    throw_line, line = [ln for ln in text.splitlines() if ln.startswith("| Random search | 100 |")]
+    assert "**" not in throw_line  # throwing was not asked for
+    ours = re.search(r"\*\*([\d.]+) ± ([\d.]+)\*\* \(2\)", line)
+    assert ours, line
+    assert (out / "paper_curves.png").stat().st_size > 10_000
+    rows = (out / "results.csv").read_text().splitlines()
+    assert len(rows) == 1 + 2 * 100
+    best = [float(r.split(",")[6]) for r in rows[1:]]
+    finals = [best[99], best[199]]
+    assert float(ours.group(1)) == pytest.approx(np.mean(finals), abs=6e-4)
+    again = handful(*args, "--no-progress", cwd=tmp_path)  # all cached: same table, no runs
+    assert again.returncode == 0 and (out / "paper.md").read_text() == text
