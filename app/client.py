@@ -294,6 +294,19 @@ class HandfulClient:
                     return receipt
             raise
 
+    def withdraw_measurement(self, measurement_id: int, reason: str) -> JSON:
+        """Withdraw a repeat (kept, no longer counted); returns the trial's new objective."""
+        return self.request(
+            "POST", f"/api/measurements/{measurement_id}/withdraw", json={"reason": reason}
+        )
+
+    def supersede_measurement(
+        self, measurement_id: int, value: float, unit: str, reason: str, note: str = ""
+    ) -> JSON:
+        """Correct a repeat (the old one kept, withdrawn); returns the trial's new objective."""
+        body = {"value": value, "unit": unit, "reason": reason, "note": note}
+        return self.request("POST", f"/api/measurements/{measurement_id}/supersede", json=body)
+
     def fail_trial(self, trial_id: int, reason: str) -> JSON:
         return self.request("POST", f"/api/trials/{trial_id}/fail", json={"reason": reason})
 
@@ -311,6 +324,14 @@ class HandfulClient:
         return self.request(
             "POST", f"/api/trials/{trial_id}/confirm", json={"schedule_hash": schedule_hash}
         )
+
+    def preview_and_confirm(self, trial: JSON, *, timeout_s: float = 120.0) -> JSON:
+        """An operator's two steps for a hardware trial: preview its schedule (waiting for the
+        rollout to finish), then confirm exactly that schedule. Returns the confirmed trial."""
+        job = self.wait_preview(self.preview(trial["id"])["job_id"], timeout_s=timeout_s)
+        if job["status"] != "done":
+            raise HandfulAPIError(409, f"preview failed: {job['error']}", "preview_failed")
+        return self.confirm_trial(trial["id"], job["schedule_hash"])
 
     def run_trial(self, trial_id: int) -> JSON:
         """Simulate a queued sim trial in the service; returns the finished trial."""

@@ -12,12 +12,37 @@ from typing import Literal
 from pydantic import BaseModel, Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from app.policy import SIM_MAX_PRESSURE_PA, HardwareCeilings
+
 
 class PreviewSettings(BaseModel):
     """Sim previews of a trial's schedule, run off the request path."""
 
     workers: int = Field(1, ge=1, le=64, description="threads running preview rollouts")
     max_jobs: int = Field(64, ge=1, description="finished preview jobs kept in memory")
+
+
+class RobotSettings(BaseModel):
+    """The robot's absolute hardware ceilings, Pa (``HANDFUL_ROBOT__SOURCE_PA=205000``, ...).
+
+    Every hardware experiment's limits must lie within them (they can only narrow them), and
+    every hardware schedule is checked against them on suggest, attach, preview, confirm and
+    claim, whatever the experiment says. Defaults: the paper's robot (shared/ROBOT.md).
+    """
+
+    source_pa: float = Field(205_000.0, gt=0, le=10e6, description="supply pressure, Pa")
+    max_step_pa: float = Field(30_000.0, gt=0, le=10e6, description="largest offset, Pa")
+    chamber_max_pa: float = Field(
+        SIM_MAX_PRESSURE_PA, gt=0, le=10e6, description="chambers' rating, Pa (40 psi)"
+    )
+
+    def ceilings(self) -> HardwareCeilings:
+        """As the policy's ``HardwareCeilings`` (what the checks take)."""
+        return HardwareCeilings(
+            source_pa=self.source_pa,
+            max_step_pa=self.max_step_pa,
+            chamber_max_pa=self.chamber_max_pa,
+        )
 
 
 class Settings(BaseSettings):
@@ -44,6 +69,7 @@ class Settings(BaseSettings):
     max_attempts: int = Field(3, ge=1, description="claims of one sim trial before `failed`")
     max_body_bytes: int = Field(16 * 1024 * 1024, ge=1024, description="largest request body")
     preview: PreviewSettings = Field(default_factory=PreviewSettings)
+    robot: RobotSettings = Field(default_factory=RobotSettings)
     torch_threads: int = Field(
         1,
         ge=1,

@@ -10,6 +10,7 @@ the caller's token), so it sees exactly what the caller may see.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 import threading
@@ -19,7 +20,7 @@ from typing import Any, TypeVar
 
 import httpx
 import numpy as np
-from fastapi import APIRouter, FastAPI, HTTPException, Request
+from fastapi import APIRouter, FastAPI, HTTPException, Request, WebSocket, WebSocketDisconnect
 from fastapi.responses import (
     FileResponse,
     HTMLResponse,
@@ -37,6 +38,8 @@ from app.viz import Replay, VizServer
 log = logging.getLogger(__name__)
 
 WEB_DIR = Path(__file__).resolve().parents[1] / "web"
+#: the proxied viser client (``/viz/client/``) is framed by our own pages, and only by them
+VIZ_CLIENT_CSP = "frame-ancestors 'self'; object-src 'none'; base-uri 'self'"
 
 
 def plotly_js_path() -> Path:
@@ -305,6 +308,9 @@ def mount_dashboard(app: FastAPI, settings: Any) -> None:
             "key": key,
             "port": viz.port,
             "websocket_path": viz.websocket_path(key),
+            # the same view through the main port (one forwarded port is enough)
+            "proxy_url": "/viz/client/",
+            "proxy_websocket_path": f"/viz/ws{viz.websocket_path(key)}",
             "label": primary.label,
             "overlay_label": overlay.label if overlay else None,
             "trial_id": trial.id,
@@ -336,5 +342,74 @@ def mount_dashboard(app: FastAPI, settings: Any) -> None:
             )
         label = f"trial {trial.index} (candidate, sim preview)"
         return Replay(task, recorded[0], recorded[1], label, preset), trial
+
+    def upstream_host() -> str:
+        host = str(settings.host)
+        return "127.0.0.1" if host in ("0.0.0.0", "::", "") else host
+
+    @router.get("/viz/client/{path:path}")
+    async def viz_client(path: str, request: Request) -> Response:
+        """The viser web client, proxied from the viser port (so one port serves it all)."""
+        if not viz.running:
+            raise HTTPException(503, "the 3D viewer (viser) is not running on this server")
+        url = f"http://{upstream_host()}:{viz.port}/{path}"
+        async with httpx.AsyncClient(timeout=30.0) as c:
+            r = await c.get(url, params=dict(request.query_params))
+        wanted = ("content-type", "cache-control")
+        keep = {k: v for k, v in r.headers.items() if k.lower() in wanted}
+        # the one thing our own pages frame: allowed by them alone (every other reply keeps
+        # app.api.limits.SECURITY_HEADERS' frame-ancestors 'none' / DENY)
+        keep["content-security-policy"] = VIZ_CLIENT_CSP
+        keep["x-frame-options"] = "SAMEORIGIN"
+        return Response(r.content, status_code=r.status_code, headers=keep)
+
+    @router.websocket("/viz/ws/view/{key}")
+    async def viz_socket(websocket: WebSocket, key: str) -> None:
+        """A 3D view's websocket, relayed to the viser port both ways (its key is the secret)."""
+        import websockets
+
+        if not viz.running:
+            await websocket.close(code=1013)
+            return
+        offered = list(websocket.scope.get("subprotocols") or [])
+        url = f"ws://{upstream_host()}:{viz.port}{viz.websocket_path(key)}"
+        try:
+            upstream = await websockets.connect(
+                url, subprotocols=offered or None, max_size=50 * 1024 * 1024, compression=None
+            )
+        except (OSError, websockets.exceptions.WebSocketException) as exc:
+            log.warning("3D view %s: viser refused the relay: %s", key[:8], exc)
+            await websocket.close(code=1011)
+            return
+        await websocket.accept(subprotocol=upstream.subprotocol)
+
+        async def down() -> None:  # viser -> browser
+            async for message in upstream:
+                if isinstance(message, bytes):
+                    await websocket.send_bytes(message)
+                else:
+                    await websocket.send_text(message)
+
+        async def up() -> None:  # browser -> viser
+            while True:
+                message = await websocket.receive()
+                if message["type"] == "websocket.disconnect":
+                    return
+                if message.get("bytes") is not None:
+                    await upstream.send(message["bytes"])
+                elif message.get("text") is not None:
+                    await upstream.send(message["text"])
+
+        tasks = [asyncio.create_task(down()), asyncio.create_task(up())]
+        try:
+            await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+        except WebSocketDisconnect:
+            pass
+        finally:
+            for t in tasks:
+                t.cancel()
+            await upstream.close()
+            with contextlib.suppress(RuntimeError):  # already closed by the browser
+                await websocket.close()
 
     app.include_router(router)

@@ -136,6 +136,81 @@ class PressureLimits:
         return np.asarray(self.nominal_pa) + self.max_step_pa
 
 
+def _kpa(value_pa: float) -> str:
+    return f"{value_pa / 1000.0:g} kPa"
+
+
+@dataclass(frozen=True)
+class HardwareCeilings:
+    """A robot's absolute ceilings, Pa: no experiment's limits or schedule may go beyond them.
+
+    The server reads them from its settings (``HANDFUL_ROBOT__*``) and a hardware driver
+    declares its own (``Driver.ceilings``); an experiment's ``PressureLimits`` may only narrow
+    them. Messages name the values in kPa, the unit an operator types.
+
+    Attributes:
+        source_pa: supply pressure; no limits' source and no chamber above it (paper: ~205 kPa).
+        max_step_pa: largest offset from nominal any experiment may allow (paper: 30 kPa).
+        chamber_max_pa: the chambers' own rating (the simulator's range: 275.8 kPa, 40 psi).
+    """
+
+    source_pa: float = 205_000.0
+    max_step_pa: float = 30_000.0
+    chamber_max_pa: float = SIM_MAX_PRESSURE_PA
+
+    def __post_init__(self) -> None:
+        for name in ("source_pa", "max_step_pa", "chamber_max_pa"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+                raise PolicyError(f"ceiling {name} must be a finite number > 0 Pa, got {v!r}")
+
+    @property
+    def top_pa(self) -> float:
+        """The highest pressure any chamber may ever get: min(source, chamber max)."""
+        return min(self.source_pa, self.chamber_max_pa)
+
+    def check_limits(self, limits: PressureLimits) -> None:
+        """Refuse limits wider than these ceilings (PolicyError naming the field, in kPa)."""
+        if limits.source_pa > self.source_pa:
+            raise PolicyError(
+                f"source pressure {_kpa(limits.source_pa)} is above this robot's ceiling of "
+                f"{_kpa(self.source_pa)}"
+            )
+        if limits.max_step_pa > self.max_step_pa:
+            raise PolicyError(
+                f"maximum step {_kpa(limits.max_step_pa)} is above this robot's ceiling of "
+                f"{_kpa(self.max_step_pa)}"
+            )
+        top = float(np.max(limits.upper_pa))
+        if top > self.top_pa:
+            c = int(np.argmax(limits.upper_pa))
+            raise PolicyError(
+                f"chamber {CHAMBER_NAMES[c]}: nominal {_kpa(limits.nominal_pa[c])} + step "
+                f"{_kpa(limits.max_step_pa)} reaches {_kpa(top)}, above this robot's chamber "
+                f"ceiling of {_kpa(self.top_pa)}"
+            )
+
+    def check_schedule(
+        self, pressure_schedule_pa: np.ndarray, nominal_pa: np.ndarray | float
+    ) -> np.ndarray:
+        """Refuse a schedule above ``top_pa`` or further than ``max_step_pa`` from nominal."""
+        schedule = check_schedule(pressure_schedule_pa, lower_pa=0.0, upper_pa=self.top_pa)
+        nominal = np.broadcast_to(np.asarray(nominal_pa, dtype=np.float64), (N_CHAMBERS,))
+        off = np.abs(schedule - nominal) > self.max_step_pa + 1e-6
+        if off.any():
+            step, chamber = (int(i) for i in np.argwhere(off)[0])
+            value = float(schedule[step, chamber])
+            raise PressureLimitError(
+                f"step {step + 1}, chamber {CHAMBER_NAMES[chamber]}: {_kpa(value)} is more than "
+                f"this robot's maximum step of {_kpa(self.max_step_pa)} from nominal "
+                f"{_kpa(nominal[chamber])}",
+                chamber=chamber,
+                step=step + 1,
+                value_pa=value,
+            )
+        return schedule
+
+
 def check_schedule(
     pressure_schedule_pa: npt.ArrayLike,
     *,

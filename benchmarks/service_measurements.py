@@ -87,7 +87,7 @@ def raw_round(db_url: str, trial_ids: list[int], writes: int, synchronous: str) 
                     value=2.0 + 0.001 * i,
                     unit="m/s",
                     note="",
-                    source="operator",
+                    source="tape",
                     created_by="bench",
                     created_at=utcnow(),
                 )

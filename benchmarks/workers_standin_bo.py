@@ -99,7 +99,7 @@ def run_bo(args: argparse.Namespace, root: Path) -> list[dict]:
                 t0 = time.perf_counter()
                 [trial] = api.suggest(exp["id"], n=1)
                 suggest_s = time.perf_counter() - t0
-                api.confirm_trial(trial["id"], trial["schedule_hash"])  # the operator's go
+                api.preview_and_confirm(trial)  # the operator's go
                 while (t := api.get_trial(trial["id"]))["status"] in ("queued", "running"):
                     time.sleep(0.1)
                 if t["status"] == "needs_review":

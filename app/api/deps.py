@@ -50,6 +50,7 @@ async def read_session(db: Annotated[Database, Depends(get_db)]) -> AsyncIterato
 MAX_ID = 2**63 - 1  # the largest id a database row can have (SQLite, PostgreSQL BIGINT)
 ExperimentId = Annotated[int, Path(ge=1, le=MAX_ID, description="an experiment's id")]
 TrialId = Annotated[int, Path(ge=1, le=MAX_ID, description="a trial's id")]
+MeasurementId = Annotated[int, Path(ge=1, le=MAX_ID, description="a measurement's id")]
 
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 DbDep = Annotated[Database, Depends(get_db)]

@@ -113,6 +113,26 @@ def _warm_imports(settings: Settings) -> None:
         log.warning("simulator unavailable: %s", exc)
 
 
+def _offline_docs(app: FastAPI) -> None:
+    """``/docs``: Swagger UI from the installed ``swagger-ui-bundle`` package (its JS and CSS
+    at ``/docs-assets``), so a lab without internet access still gets the API's docs."""
+    from fastapi.openapi.docs import get_swagger_ui_html
+    from fastapi.staticfiles import StaticFiles
+    from swagger_ui_bundle import swagger_ui_path
+
+    app.mount("/docs-assets", StaticFiles(directory=swagger_ui_path), name="docs-assets")
+
+    @app.get("/docs", include_in_schema=False)
+    def docs() -> Any:
+        return get_swagger_ui_html(
+            openapi_url=app.openapi_url or "/openapi.json",
+            title="handful API",
+            swagger_js_url="/docs-assets/swagger-ui-bundle.js",
+            swagger_css_url="/docs-assets/swagger-ui.css",
+            swagger_favicon_url="/docs-assets/favicon-32x32.png",
+        )
+
+
 class HealthRead(BaseModel):
     status: Literal["ok", "error"]
     db: str
@@ -134,7 +154,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         version=VERSION,
         summary="Trial service: BayesOpt with a person in the loop for a pneumatic soft arm.",
         lifespan=_lifespan,
+        docs_url=None,  # served below from the installed swagger-ui-bundle: no CDN, works offline
+        redoc_url=None,
     )
+    _offline_docs(app)
     app.state.settings = settings
     app.state.db = Database(
         settings.db_url,

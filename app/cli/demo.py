@@ -165,7 +165,7 @@ def _autopilot(
                     api.suggest(exp_id, n=min(keep - waiting, left))
             if auto_confirm:
                 for t in api.list_trials(hw_id, status="awaiting_confirmation"):
-                    api.confirm_trial(t["id"], t["schedule_hash"])
+                    api.preview_and_confirm(t)
         except HandfulAPIError as exc:
             log.warning("autopilot: %s", exc)
         except Exception as exc:  # the server restarting, a timeout: try again shortly

@@ -81,6 +81,9 @@ class Experiment(Base):
     n_initial: Mapped[int] = mapped_column(Integer)
     seed: Mapped[int] = mapped_column(Integer)
     optimizer_settings: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    #: measurement sources the objective is made of, comma-separated (None: the default for
+    #: task and target, ``app.service.schemas.objective_sources_of``)
+    objective_sources: Mapped[str | None] = mapped_column(String(64))
     # bookkeeping
     budget: Mapped[int | None] = mapped_column(Integer)
     status: Mapped[str] = mapped_column(String(16), default="active")
@@ -146,9 +149,14 @@ class Measurement(Base):
     value: Mapped[float] = mapped_column(Float)
     unit: Mapped[str] = mapped_column(String(16))
     note: Mapped[str] = mapped_column(Text, default="")
-    source: Mapped[str] = mapped_column(String(16))  # operator | worker
+    source: Mapped[str] = mapped_column(String(16))  # tape | tracker | sim | imported
     created_by: Mapped[str] = mapped_column(String(64))
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    # corrections: a repeat is never deleted; it is withdrawn (and maybe superseded) instead
+    withdrawn_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
+    withdrawn_by: Mapped[str | None] = mapped_column(String(64))
+    withdrawn_reason: Mapped[str | None] = mapped_column(Text)
+    supersedes_id: Mapped[int | None] = mapped_column(ForeignKey("measurements.id"))
 
     trial: Mapped[Trial] = relationship(back_populates="measurements")
 
@@ -202,6 +210,24 @@ class Confirmation(Base):
     schedule_hash: Mapped[str] = mapped_column(String(64))
     confirmed_by: Mapped[str] = mapped_column(String(64))
     confirmed_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+
+
+class Preview(Base):
+    """A sim preview of a trial's exact schedule that an operator ran to the end (what a
+    confirmation must be bound to): who, when, the schedule's hash, the settings it ran with."""
+
+    __tablename__ = "previews"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    trial_id: Mapped[int] = mapped_column(ForeignKey("trials.id", ondelete="CASCADE"), index=True)
+    schedule_hash: Mapped[str] = mapped_column(String(64))
+    #: the experiment's command hold the preview ran with (zero | linear)
+    hold: Mapped[str | None] = mapped_column(String(64))
+    sim_preset: Mapped[str] = mapped_column(String(32))
+    job_id: Mapped[str] = mapped_column(String(32))
+    predicted_objective: Mapped[float | None] = mapped_column(Float)
+    previewed_by: Mapped[str] = mapped_column(String(64))
+    previewed_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
 
 
 class IdempotencyKey(Base):

@@ -1,10 +1,12 @@
 """An experiment as one JSON bundle, and back: everything, for archiving or moving it.
 
 ``export_bundle`` carries every column of the experiment, its trials, raw measurements (who,
-when, unit, note), confirmations, artifacts (the trajectory files themselves, base64) and its
-audit log. ``import_bundle`` stores it as a new experiment (new ids, every reference mapped,
-files written, their SHA-256 checked) plus one audit row saying so. Exporting the import again
-gives the same bundle but for ids, file paths and that audit row (tested).
+when, unit, note, source; withdrawn and superseded ones too), previews, confirmations,
+artifacts (the trajectory files themselves, base64) and its audit log. ``import_bundle``
+stores it as a new experiment (new ids, every reference mapped, corrections to the repeats
+they correct, files written, their SHA-256 checked) plus one audit row saying so.
+Exporting the import again gives the same bundle but for ids, file paths and that audit
+row (tested).
 Leases and idempotency keys are operational state, not the experiment's record: left out.
 """
 
@@ -20,7 +22,15 @@ from sqlalchemy import Table, insert, select
 from sqlalchemy.orm import Session
 
 from app.db.base import UTCDateTime
-from app.db.models import Artifact, AuditLog, Confirmation, Experiment, Measurement, Trial
+from app.db.models import (
+    Artifact,
+    AuditLog,
+    Confirmation,
+    Experiment,
+    Measurement,
+    Preview,
+    Trial,
+)
 from app.service.audit import json_safe, record
 from app.service.auth import Actor
 from app.service.errors import InvalidInput
@@ -33,6 +43,7 @@ _TABLE: dict[str, Table] = {
     "trials": Trial.__table__,
     "measurements": Measurement.__table__,
     "confirmations": Confirmation.__table__,
+    "previews": Preview.__table__,
     "artifacts": Artifact.__table__,
     "audit": AuditLog.__table__,
 }
@@ -64,7 +75,7 @@ def export_bundle(session: Session, experiment_id: int, artifacts_dir: Path) -> 
         "experiment": experiment,
         "trials": trials,
     }
-    for name in ("measurements", "confirmations", "artifacts"):
+    for name in ("measurements", "confirmations", "previews", "artifacts"):
         table = _TABLE[name]
         bundle[name] = _rows(session, table, table.c.trial_id.in_(ids)) if ids else []
     for art in bundle["artifacts"]:
@@ -105,7 +116,8 @@ def import_bundle(
         raise InvalidInput(f"not a {FORMAT} version {VERSION}")
     try:
         exp_row = bundle["experiment"]
-        tables = {name: bundle[name] for name in _TABLE if name != "experiment"}
+        tables = {name: bundle[name] for name in _TABLE if name not in ("experiment", "previews")}
+        tables["previews"] = bundle.get("previews", [])  # bundles from before previews
     except KeyError as exc:
         raise InvalidInput(f"the bundle lacks {exc}") from None
     exp_t = _TABLE["experiment"]
@@ -125,7 +137,23 @@ def import_bundle(
                 f"a row refers to trial {row.get('trial_id')}, not in the bundle"
             ) from None
 
-    for name in ("measurements", "confirmations"):
+    measurement_map: dict[int, int] = {}
+    meas_t = _TABLE["measurements"]
+    for row in sorted(tables["measurements"], key=lambda r: int(r["id"])):
+        old = row.get("supersedes_id")
+        if old is not None and int(old) not in measurement_map:
+            raise InvalidInput(f"measurement {row['id']} corrects {old}, not in the bundle")
+        measurement_map[int(row["id"])] = _insert(
+            session,
+            meas_t,
+            _values(
+                meas_t,
+                row,
+                trial_id=trial_of(row),
+                supersedes_id=None if old is None else measurement_map[int(old)],
+            ),
+        )
+    for name in ("confirmations", "previews"):
         table = _TABLE[name]
         for row in tables[name]:
             session.execute(insert(table).values(**_values(table, row, trial_id=trial_of(row))))
@@ -150,6 +178,8 @@ def import_bundle(
             entity_id = str(exp_id)
         elif row["entity"] == "trial" and entity_id.isdigit():
             entity_id = str(trial_map.get(int(entity_id), entity_id))
+        elif row["entity"] == "measurement" and entity_id.isdigit():
+            entity_id = str(measurement_map.get(int(entity_id), entity_id))
         session.execute(
             insert(audit_t).values(
                 **_values(

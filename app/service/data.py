@@ -80,7 +80,8 @@ CSV_TAIL = ("created_by", "confirmed_by", "confirmed_at", "repeats")
 def export_csv(session: Session, experiment_id: int) -> str:
     """One row per trial: index, status, objective, SEM, θ (planned and executed), times, the
     experiment's command hold (how the schedule's rows were applied); then who made and
-    confirmed it, and its raw repeats (``value unit by who; ...``)."""
+    confirmed it, and its raw repeats (``value unit source by who; ...``, a withdrawn one says
+    so, with its reason)."""
     exp = get_experiment(session, experiment_id)
     dim = policy_dim(exp.horizon, exp.with_release)
     trials = list_trials(session, experiment_id)
@@ -102,7 +103,10 @@ def export_csv(session: Session, experiment_id: int) -> str:
         .where(Trial.experiment_id == experiment_id)
         .order_by(Measurement.id)
     ):
-        repeats.setdefault(m.trial_id, []).append(f"{m.value!r} {m.unit} by {m.created_by}")
+        text = f"{m.value!r} {m.unit} {m.source} by {m.created_by}"
+        if m.withdrawn_at is not None:
+            text += f" (withdrawn by {m.withdrawn_by}: {m.withdrawn_reason})"
+        repeats.setdefault(m.trial_id, []).append(text)
     for t in trials:
         d = t.model_dump(mode="json")
         row = ["" if d[f] is None else d[f] for f in CSV_FIELDS]
@@ -155,7 +159,7 @@ def import_observations(
             trial,
             [(ob.objective, unit, ob.note or "imported")],
             actor=actor,
-            source="operator",
+            source="imported",
         )
         if ob.objective_sem is not None:
             trial.objective_sem = float(ob.objective_sem)
@@ -189,10 +193,13 @@ def model_insight(
     exp = get_experiment(session, experiment_id)
     inputs = optimizer_inputs(session, exp)
     obs = inputs.observations
+    n_penalised = len(inputs.refused_ids) if inputs.refused_penalty is not None else 0
     base: dict[str, Any] = {
         "experiment_id": exp.id,
         "method": exp.method,
-        "n_observations": len(obs),
+        "n_observations": len(obs) - n_penalised,
+        "n_refused": len(inputs.refused_ids),
+        "refused_penalty": inputs.refused_penalty,
     }
     if not obs:
         return ModelRead(
@@ -214,11 +221,14 @@ def model_insight(
         .order_by(Trial.objective.desc(), Trial.index)
     ).first()
     assert best is not None
-    inc = [
-        float(v) for v in (best.executed_theta if best.executed_theta is not None else best.theta)
-    ]
+    theta = best.executed_theta if best.executed_theta is not None else best.theta
+    inc = [float(v) for v in theta]
     head: dict[str, Any] = dict(
-        base, incumbent_theta=inc, incumbent_objective=best.objective, incumbent_trial_id=best.id
+        base,
+        incumbent_theta=inc,
+        incumbent_objective=best.objective,
+        incumbent_trial_id=best.id,
+        incumbent_trial_index=best.index,
     )
     if viewer is None:
         view = model_view(rebuild_optimizer(inputs), inputs, inc, n_points)

@@ -98,6 +98,12 @@ class ConfirmationMismatch(SafetyViolation):
     code = "confirmation_mismatch"
 
 
+class NotPreviewed(ConfirmationMismatch):
+    """A confirmation of a schedule this operator has not previewed (409)."""
+
+    code = "not_previewed"
+
+
 class PayloadTooLarge(ServiceError):
     """A body or upload beyond ``max_body_bytes``."""
 

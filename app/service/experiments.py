@@ -13,7 +13,7 @@ from sqlalchemy.orm import Session
 from app.db.base import utcnow
 from app.db.models import AuditLog, Experiment, Trial
 from app.optim.methods import METHODS, OptimizerSpec
-from app.policy import RELEASE_TASKS, Policy, PolicyError, PressureLimits
+from app.policy import RELEASE_TASKS, HardwareCeilings, Policy, PolicyError, PressureLimits
 from app.service.audit import record
 from app.service.auth import Actor
 from app.service.errors import InvalidInput, NotFound
@@ -96,8 +96,17 @@ def optimizer_spec(exp: Experiment) -> OptimizerSpec:
     )
 
 
-def create_experiment(session: Session, spec: ExperimentCreate, *, actor: Actor) -> Experiment:
-    """Validate and store a new experiment (flushed; the caller's ``Database.write`` commits)."""
+def create_experiment(
+    session: Session,
+    spec: ExperimentCreate,
+    *,
+    actor: Actor,
+    ceilings: HardwareCeilings | None = None,
+) -> Experiment:
+    """Validate and store a new experiment (flushed; the caller's ``Database.write`` commits).
+
+    A hardware experiment's limits must lie within ``ceilings`` (the server's settings; the
+    paper robot's when None): they can only narrow them."""
     from app.optim import OptimError, build_optimizer
 
     with_release = (
@@ -119,7 +128,12 @@ def create_experiment(session: Session, spec: ExperimentCreate, *, actor: Actor)
                 source_pa=spec.limits.source_pa,
             )
         except (PolicyError, ValueError) as exc:
-            raise InvalidInput(f"limits: {exc}") from None
+            raise InvalidInput(f"limits: {_in_kpa(str(exc))}") from None
+        if spec.target == "hardware":
+            try:
+                (ceilings or HardwareCeilings()).check_limits(limits)
+            except PolicyError as exc:
+                raise InvalidInput(f"limits: {exc}") from None
     try:
         policy = Policy(
             levels=spec.levels, horizon=spec.horizon, with_release=with_release, limits=limits
@@ -128,6 +142,12 @@ def create_experiment(session: Session, spec: ExperimentCreate, *, actor: Actor)
         raise InvalidInput(str(exc)) from None
     if spec.method not in METHODS:
         raise InvalidInput(f"method {spec.method!r} is not one of {', '.join(METHODS)}")
+    n_initial = spec.n_initial if spec.n_initial is not None else policy.dim + 1
+    if spec.budget is not None and n_initial > spec.budget and spec.method in _bo_methods():
+        raise InvalidInput(
+            f"n_initial: {n_initial} random initial trials do not fit in a budget of "
+            f"{spec.budget} trials; lower n_initial or raise the budget"
+        )
     exp = Experiment(
         name=spec.name,
         task=spec.task,
@@ -144,9 +164,12 @@ def create_experiment(session: Session, spec: ExperimentCreate, *, actor: Actor)
         method=spec.method,
         acquisition=spec.acquisition,
         kappa=spec.kappa,
-        n_initial=spec.n_initial if spec.n_initial is not None else policy.dim + 1,
+        n_initial=n_initial,
         seed=spec.seed,
         optimizer_settings=dict(spec.optimizer_settings),
+        objective_sources=",".join(dict.fromkeys(spec.objective_sources))
+        if spec.objective_sources
+        else None,
         budget=spec.budget,
         status="active",
         notes=spec.notes,
@@ -172,6 +195,29 @@ def create_experiment(session: Session, spec: ExperimentCreate, *, actor: Actor)
     )
     session.flush()
     return exp
+
+
+def _bo_methods() -> frozenset[str]:
+    from app.optim import BO_METHODS
+
+    return frozenset(BO_METHODS)
+
+
+def _in_kpa(message: str) -> str:
+    """A limits message of ``PressureLimits`` with its Pa numbers also in kPa."""
+    import re
+
+    def kpa(m: re.Match[str]) -> str:
+        return f"{float(m.group(1)) / 1000.0:g} kPa"
+
+    num = r"(-?[0-9.]+(?:e[+-]?[0-9]+)?)"
+
+    def span(m: re.Match[str]) -> str:
+        lo, hi = (float(m.group(i)) / 1000.0 for i in (1, 2))
+        return f"[{lo:g}, {hi:g}] kPa"
+
+    message = re.sub(rf"\[{num}, {num}\] Pa\b", span, message)
+    return re.sub(rf"{num} Pa\b", kpa, message)
 
 
 def _check_preset(preset: str) -> None:
@@ -202,9 +248,21 @@ def _stats(session: Session, ids: list[int]) -> tuple[dict[int, dict[str, int]],
     ).all()
     for eid, status, n in rows:
         counts[eid][status] = n
-    best: dict[int, tuple[int, float]] = {}
+    # ran, but no measurement from the objective's sources yet: what an operator must measure
+    awaiting = session.execute(
+        select(Trial.experiment_id, func.count())
+        .where(
+            Trial.experiment_id.in_(ids),
+            Trial.status == COMPLETED,
+            Trial.objective.is_(None),
+        )
+        .group_by(Trial.experiment_id)
+    ).all()
+    for eid, n in awaiting:
+        counts[eid]["awaiting_measurement"] = n
+    best: dict[int, tuple[int, float, int]] = {}
     rows2 = session.execute(
-        select(Trial.experiment_id, Trial.id, Trial.objective)
+        select(Trial.experiment_id, Trial.id, Trial.objective, Trial.index)
         .where(
             Trial.experiment_id.in_(ids),
             Trial.status == COMPLETED,
@@ -212,9 +270,9 @@ def _stats(session: Session, ids: list[int]) -> tuple[dict[int, dict[str, int]],
         )
         .order_by(Trial.experiment_id, Trial.objective.desc(), Trial.index)
     ).all()
-    for eid, tid, obj in rows2:
+    for eid, tid, obj, index in rows2:
         if eid not in best and obj is not None:  # the query keeps only objectives
-            best[eid] = (tid, obj)
+            best[eid] = (tid, obj, index)
     return counts, best
 
 
@@ -238,6 +296,17 @@ def patch_experiment(
     """Change status / notes / budget (audited; ``Database.write`` commits)."""
     exp = get_experiment(session, experiment_id)
     changes = patch.model_dump(exclude_unset=True)
+    if changes.get("budget") is not None:
+        used = session.scalar(
+            select(func.count())
+            .select_from(Trial)
+            .where(Trial.experiment_id == exp.id, Trial.status != "abandoned")
+        )
+        if changes["budget"] < (used or 0):
+            raise InvalidInput(
+                f"budget: {changes['budget']} trials is below the {used} trials this experiment "
+                "already has (abandoned ones not counted)"
+            )
     for field, value in changes.items():
         if field in ("status", "notes") and value is None:
             raise InvalidInput(f"{field} cannot be null")

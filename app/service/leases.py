@@ -21,7 +21,7 @@ from sqlalchemy.orm import Session
 
 from app.db.base import utcnow
 from app.db.models import Experiment, Lease, Trial
-from app.policy import PolicyError, schedule_hash
+from app.policy import HardwareCeilings, PolicyError, schedule_hash
 from app.service import lifecycle as lc
 from app.service.artifacts import store_trajectory
 from app.service.audit import record
@@ -171,10 +171,16 @@ def sweep_expired(
 
 
 # --- claim -----------------------------------------------------------------------------------
-def _gate(session: Session, exp: Experiment, trial: Trial, now: datetime) -> str | None:
+def _gate(
+    session: Session,
+    exp: Experiment,
+    trial: Trial,
+    now: datetime,
+    ceilings: HardwareCeilings | None = None,
+) -> str | None:
     """Why this queued trial may not be handed to a worker (None: it may)."""
     try:
-        check_schedule_safe(exp, trial.pressure_schedule_pa, trial.release_step)
+        check_schedule_safe(exp, trial.pressure_schedule_pa, trial.release_step, ceilings=ceilings)
     except SafetyViolation as exc:
         return str(exc)
     if exp.target == "hardware":
@@ -197,6 +203,7 @@ def claim(
     lease_seconds: float,
     max_attempts: int,
     now: datetime | None = None,
+    ceilings: HardwareCeilings | None = None,
 ) -> list[ClaimRead]:
     """Hand up to ``max_trials`` queued trials of ``target`` to a worker, each under a lease.
 
@@ -223,7 +230,7 @@ def claim(
         if len(out) >= body.max_trials:
             break
         exp = trial.experiment
-        refusal = _gate(session, exp, trial, now)
+        refusal = _gate(session, exp, trial, now, ceilings)
         if refusal is not None:
             lc.transition(
                 session,
@@ -399,7 +406,7 @@ def report_result(
             trial,
             [(body.objective, exp.objective_unit, note)],
             actor=actor,
-            source="worker",
+            source="tracker" if exp.target == "hardware" else "sim",
         )
     detail: dict[str, Any] = {"lease_id": lease.id, "worker_id": lease.worker_id}
     if body.summary:

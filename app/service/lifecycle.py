@@ -70,7 +70,7 @@ def check_transition(trial: Trial, new: str, *, action: str | None = None) -> No
         verb = action or f"move to {new}"
         allowed = sorted(TRANSITIONS.get(trial.status, ()))
         raise IllegalTransition(
-            f"cannot {verb}: trial {trial.id} is {trial.status}"
+            f"cannot {verb}: trial #{trial.index} is {trial.status}"
             + (f" (from {trial.status} it can go to {', '.join(allowed)})" if allowed else ""),
             current=trial.status,
             requested=new,

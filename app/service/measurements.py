@@ -30,7 +30,14 @@ from app.service.errors import (
     NotFound,
 )
 from app.service.experiments import touch_id
-from app.service.schemas import MeasurementRead, MeasurementReceipt, MeasurementsIn
+from app.service.schemas import (
+    MeasurementRead,
+    MeasurementReceipt,
+    MeasurementsIn,
+    SupersedeIn,
+    objective_sources_of,
+    sources_list,
+)
 
 #: plausible range of one measurement, per unit (anything outside is a typo or a unit mix-up)
 UNIT_RANGE: dict[str, tuple[float, float]] = {
@@ -76,8 +83,11 @@ def check_value(value: float, unit: str, expected_unit: str, *, what: str = "val
 _MEASUREMENTS = Measurement.__table__
 _TRIALS = Trial.__table__
 _VALUES_OF = (
-    select(_MEASUREMENTS.c.value)
-    .where(_MEASUREMENTS.c.trial_id == bindparam("trial_id"))
+    select(_MEASUREMENTS.c.value, _MEASUREMENTS.c.source)
+    .where(
+        _MEASUREMENTS.c.trial_id == bindparam("trial_id"),
+        _MEASUREMENTS.c.withdrawn_at.is_(None),
+    )
     .order_by(_MEASUREMENTS.c.id)
 )
 _INSERT_REPEAT = insert(_MEASUREMENTS).returning(_MEASUREMENTS.c.id)
@@ -112,6 +122,10 @@ _TRIAL_TO_MEASURE = (
         exists()
         .where(_KEYS.c.scope == bindparam("scope"), _KEYS.c.key == bindparam("key"))
         .label("key_seen"),
+        Experiment.__table__.c.objective_sources,
+        Experiment.__table__.c.task,
+        Experiment.__table__.c.target,
+        _TRIALS.c.index,
     )
     .join(Experiment.__table__, Experiment.__table__.c.id == _TRIALS.c.experiment_id)
     .where(_TRIALS.c.id == bindparam("trial_id"))
@@ -119,49 +133,36 @@ _TRIAL_TO_MEASURE = (
 )
 _TrialToMeasure = namedtuple(
     "_TrialToMeasure",
-    "id experiment_id status objective objective_unit leased key_seen",
+    "id experiment_id status objective objective_unit leased key_seen objective_sources task "
+    "target index",
 )
 _COUNTED = ("objective", "objective_sem", "n_measurements", "updated_at")
 _TRIAL_KEY = sa_inspect(Trial).identity_key_from_primary_key
 
 
-def store_measurement(
-    session: Session,
-    trial: Any,
-    values: Sequence[tuple[float, str, str]],
-    *,
-    actor: Actor,
-    source: str,
-) -> list[MeasurementRead]:
-    """Append raw repeats (value, unit, note) to ``trial`` and refresh its objective, SEM and
-    count from all its repeats, in SQL and on ``trial``: a flushed ORM Trial (left in step
-    with its row, nothing to flush) or any object with ``id``, ``experiment_id`` and
-    ``objective`` attributes (which get the new values).
+def _sources_of(session: Session, experiment_id: int) -> list[str]:
+    exp = session.get(Experiment, experiment_id)
+    assert exp is not None
+    return objective_sources_of(exp)
 
-    Returns the repeats stored, in order.
-    """
-    now = utcnow()
-    db = session.connection()
-    all_values = [v for (v,) in db.execute(_VALUES_OF, {"trial_id": trial.id}).fetchall()]
-    stored = []
-    for v, u, note in values:
-        row = {
-            "trial_id": trial.id,
-            "value": float(v),
-            "unit": u,
-            "note": note,
-            "source": source,
-            "created_by": actor.username,
-            "created_at": now,
-        }
-        inserted = db.execute(_INSERT_REPEAT, row).fetchone()
-        assert inserted is not None  # INSERT ... RETURNING gives the row
-        (repeat_id,) = inserted
-        stored.append(MeasurementRead(id=repeat_id, **row))
-        all_values.append(float(v))
-    before = trial.objective
-    objective, sem = objective_from_repeats(all_values)
-    counted = dict(zip(_COUNTED, (objective, sem, len(all_values), now), strict=True))
+
+def _refresh_objective(
+    session: Session, db: Connection, trial: Any, sources: Sequence[str], now: Any
+) -> tuple[float | None, float | None]:
+    """Recompute the trial's objective, SEM and count from its repeats that count (not
+    withdrawn, from one of ``sources``), in SQL and on ``trial``; return (objective, SEM)."""
+    counted_values = [
+        float(v)
+        for v, src in db.execute(_VALUES_OF, {"trial_id": trial.id}).fetchall()
+        if src in sources
+    ]
+    objective: float | None
+    sem: float | None
+    if counted_values:
+        objective, sem = objective_from_repeats(counted_values)
+    else:
+        objective, sem = None, None
+    counted = dict(zip(_COUNTED, (objective, sem, len(counted_values), now), strict=True))
     db.execute(
         _SET_OBJECTIVE, {"trial_id": trial.id, **{f"new_{k}": v for k, v in counted.items()}}
     )
@@ -173,6 +174,50 @@ def store_measurement(
             setattr(trial, name, value)
     if state is not None and "measurements" in state.dict:  # a loaded collection is now stale
         session.expire(trial, ["measurements"])
+    return objective, sem
+
+
+def store_measurement(
+    session: Session,
+    trial: Any,
+    values: Sequence[tuple[float, str, str] | tuple[float, str, str, str]],
+    *,
+    actor: Actor,
+    source: str,
+    objective_sources: Sequence[str] | None = None,
+    supersedes_id: int | None = None,
+) -> list[MeasurementRead]:
+    """Append raw repeats (value, unit, note[, source]) to ``trial`` and refresh its
+    objective, SEM and count from the repeats that count (not withdrawn, from one of the
+    experiment's ``objective_sources``), in SQL and on ``trial``: a flushed ORM Trial (left
+    in step with its row, nothing to flush) or any object with ``id``, ``experiment_id`` and
+    ``objective`` attributes (which get the new values). ``source``: tape | tracker | sim |
+    imported, unless a repeat names its own.
+
+    Returns the repeats stored, in order.
+    """
+    now = utcnow()
+    db = session.connection()
+    if objective_sources is None:
+        objective_sources = _sources_of(session, trial.experiment_id)
+    stored = []
+    for v, u, note, *own in values:
+        row = {
+            "trial_id": trial.id,
+            "value": float(v),
+            "unit": u,
+            "note": note,
+            "source": own[0] if own else source,
+            "created_by": actor.username,
+            "created_at": now,
+            "supersedes_id": supersedes_id,
+        }
+        inserted = db.execute(_INSERT_REPEAT, row).fetchone()
+        assert inserted is not None  # INSERT ... RETURNING gives the row
+        (repeat_id,) = inserted
+        stored.append(MeasurementRead(id=repeat_id, **row))
+    before = trial.objective
+    objective, _ = _refresh_objective(session, db, trial, objective_sources, now)
     record(
         db,
         actor=actor.username,
@@ -182,11 +227,111 @@ def store_measurement(
         experiment_id=trial.experiment_id,
         trial_id=trial.id,
         before=None if before is None else repr(before),
-        after=repr(objective),
-        detail={"source": source, "values": [float(v) for v, _, _ in values]},
+        after=None if objective is None else repr(objective),
+        detail={
+            "sources": sorted({m.source for m in stored}),
+            "values": [float(v[0]) for v in values],
+        },
         now=now,
     )
     return stored
+
+
+def _correctable(session: Session, measurement_id: int) -> tuple[Measurement, Trial]:
+    m = session.get(Measurement, measurement_id, with_for_update=True)
+    if m is None:
+        raise NotFound(f"measurement {measurement_id} not found")
+    trial = session.get(Trial, m.trial_id, with_for_update=True)
+    assert trial is not None
+    if m.withdrawn_at is not None:
+        raise Conflict(
+            f"this repeat ({m.value:g} {m.unit}) of trial #{trial.index} was already withdrawn "
+            f"by {m.withdrawn_by}: {m.withdrawn_reason}"
+        )
+    return m, trial
+
+
+def _withdraw(m: Measurement, reason: str, actor: Actor, now: Any) -> None:
+    m.withdrawn_at = now
+    m.withdrawn_by = actor.username
+    m.withdrawn_reason = reason
+
+
+def withdraw_measurement(
+    session: Session, measurement_id: int, reason: str, *, actor: Actor
+) -> MeasurementReceipt:
+    """Withdraw a repeat (kept, no longer counted), recompute the objective (flushed;
+    the caller's ``Database.write`` commits)."""
+    m, trial = _correctable(session, measurement_id)
+    now = utcnow()
+    before = trial.objective
+    _withdraw(m, reason, actor, now)
+    session.flush()
+    objective, _ = _refresh_objective(
+        session, session.connection(), trial, objective_sources_of(trial.experiment), now
+    )
+    record(
+        session,
+        actor=actor.username,
+        action="measurement.withdraw",
+        entity="measurement",
+        entity_id=m.id,
+        experiment_id=trial.experiment_id,
+        trial_id=trial.id,
+        before=None if before is None else repr(before),
+        after=None if objective is None else repr(objective),
+        detail={"value": m.value, "unit": m.unit, "source": m.source, "reason": reason},
+        now=now,
+    )
+    touch_id(session, trial.experiment_id)
+    receipt = MeasurementReceipt.build(trial, [MeasurementRead.model_validate(m)])
+    session.flush()
+    return receipt
+
+
+def supersede_measurement(
+    session: Session, measurement_id: int, body: SupersedeIn, *, actor: Actor
+) -> MeasurementReceipt:
+    """Replace a repeat by a corrected value: the old one is kept, withdrawn with the reason;
+    the new one (same source) points to it; the objective is recomputed (flushed)."""
+    m, trial = _correctable(session, measurement_id)
+    exp = trial.experiment
+    check_value(body.value, body.unit, exp.objective_unit, what="the corrected value")
+    now = utcnow()
+    before = trial.objective
+    _withdraw(m, body.reason, actor, now)
+    session.flush()
+    stored = store_measurement(
+        session,
+        trial,
+        [(body.value, body.unit, body.note or f"corrects {m.value:g} {m.unit}")],
+        actor=actor,
+        source=m.source,
+        objective_sources=objective_sources_of(exp),
+        supersedes_id=m.id,
+    )
+    record(
+        session,
+        actor=actor.username,
+        action="measurement.supersede",
+        entity="measurement",
+        entity_id=m.id,
+        experiment_id=trial.experiment_id,
+        trial_id=trial.id,
+        before=repr(m.value),
+        after=repr(body.value),
+        detail={
+            "reason": body.reason,
+            "objective_before": before,
+            "objective_after": trial.objective,
+            "new_measurement_id": stored[0].id,
+        },
+        now=now,
+    )
+    touch_id(session, trial.experiment_id)
+    receipt = MeasurementReceipt.build(trial, stored)
+    session.flush()
+    return receipt
 
 
 def _request_sha256(trial_id: int, body: MeasurementsIn) -> str:
@@ -241,13 +386,15 @@ def add_measurements(
         _check_key_unused(db, idempotency_key, digest)
     if row.status not in MEASURABLE:
         raise IllegalTransition(
-            f"cannot add measurements: trial {row.id} is {row.status}"
+            f"cannot add measurements: trial #{row.index} is {row.status}"
             + (" (confirm and run it first)" if row.status in lc.PENDING else ""),
             current=row.status,
         )
     for i, rep in enumerate(body.repeats):
-        check_value(rep.value, rep.unit, row.objective_unit, what=f"repeats[{i}].value")
-    values = [(r.value, r.unit, r.note) for r in body.repeats]
+        check_value(rep.value, rep.unit, row.objective_unit, what=f"repeat {i + 1}")
+    sources = sources_list(row.objective_sources, row.task, row.target)
+    typed = sources[0] if sources[0] in ("tape", "tracker") else "tape"
+    values = [(r.value, r.unit, r.note, r.source or typed) for r in body.repeats]
     # The first measurement of an unleased trial completes it: a status change, made by the
     # lifecycle on the ORM object. Later ones only touch the row (and the ORM object, when
     # the session holds one, so that it is not left stale).
@@ -255,7 +402,9 @@ def add_measurements(
     trial: Any = session.identity_map.get(_TRIAL_KEY((trial_id,)))
     if trial is None:
         trial = session.get(Trial, trial_id) if completes else SimpleNamespace(**row._asdict())
-    stored = store_measurement(session, trial, values, actor=actor, source="operator")
+    stored = store_measurement(
+        session, trial, values, actor=actor, source="tape", objective_sources=sources
+    )
     if completes:
         lc.transition(
             session, trial, lc.COMPLETED, actor=actor.username, reason="measured by the operator"

@@ -20,11 +20,12 @@ import numpy as np
 from sqlalchemy.orm import Session
 
 from app.db.base import utcnow
-from app.db.models import Lease
+from app.db.models import Lease, Preview
 from app.db.session import Database
-from app.policy import schedule_hash
+from app.policy import HardwareCeilings, schedule_hash
 from app.service import lifecycle as lc
 from app.service.artifacts import npz_to_json, store_trajectory
+from app.service.audit import record
 from app.service.auth import Actor
 from app.service.errors import Conflict, InvalidInput, NotFound
 from app.service.experiments import executed_theta, touch
@@ -79,17 +80,18 @@ def start_run(
     trial = get_trial(session, trial_id, for_update=True)
     exp = trial.experiment
     if exp.target != "sim":
-        raise Conflict(f"trial {trial.id} is a hardware trial; a hardware worker runs it")
+        raise Conflict(f"trial #{trial.index} is a hardware trial; a hardware worker runs it")
     lc.check_transition(trial, lc.RUNNING, action="run")
     if trial.status != lc.QUEUED:
         raise lc.IllegalTransition(
-            f"cannot run: trial {trial.id} is {trial.status}, not queued", current=trial.status
+            f"cannot run: trial #{trial.index} is {trial.status}, not queued",
+            current=trial.status,
         )
     sched = check_schedule_safe(exp, trial.pressure_schedule_pa, trial.release_step)
     try:
         check_rollout(exp.task, sched, release_step=trial.release_step, preset=exp.sim_preset)
     except ValueError as exc:
-        raise InvalidInput(f"trial {trial.id} cannot be simulated: {exc}") from None
+        raise InvalidInput(f"trial #{trial.index} cannot be simulated: {exc}") from None
     trial.attempts += 1
     lc.transition(session, trial, lc.RUNNING, actor=actor.username, action="trial.run", now=now)
     lease = Lease(
@@ -180,7 +182,7 @@ def finish_run(
             trial,
             [(value, exp.objective_unit, f"simulated ({run.preset})")],
             actor=actor,
-            source="worker",
+            source="sim",
         )
         lc.transition(
             session,
@@ -263,6 +265,8 @@ class PreviewJob:
     release_step: int | None
     schedule_hash: str
     command_hold: str = "zero"
+    previewed_by: str = ""
+    db: Database | None = None
     status: str = "queued"
     progress: float = 0.0
     error: str | None = None
@@ -283,6 +287,40 @@ class PreviewJob:
         )
 
 
+def record_preview(job: PreviewJob) -> None:
+    """Store a finished preview (committed, audited): a confirmation is bound to it."""
+    assert job.db is not None
+    with job.db.write() as s:
+        trial = get_trial(s, job.trial_id)
+        s.add(
+            Preview(
+                trial_id=trial.id,
+                schedule_hash=job.schedule_hash,
+                hold=job.command_hold,
+                sim_preset=job.preset,
+                job_id=job.job_id,
+                predicted_objective=job.result.get("predicted_objective"),
+                previewed_by=job.previewed_by,
+                previewed_at=utcnow(),
+            )
+        )
+        record(
+            s,
+            actor=job.previewed_by,
+            action="trial.preview",
+            entity="trial",
+            entity_id=trial.id,
+            experiment_id=trial.experiment_id,
+            trial_id=trial.id,
+            detail={
+                "schedule_hash": job.schedule_hash,
+                "hold": job.command_hold,
+                "job_id": job.job_id,
+            },
+        )
+        touch(trial.experiment)
+
+
 class PreviewRunner:
     """Runs previews in a thread pool; keeps the last ``max_jobs`` jobs in memory."""
 
@@ -292,12 +330,23 @@ class PreviewRunner:
         self._lock = threading.Lock()
         self._max_jobs = max_jobs
 
-    def submit(self, db: Database, trial_id: int) -> PreviewJobRead:
-        """Queue a preview of the trial's current schedule (checked against its limits)."""
+    def submit(
+        self,
+        db: Database,
+        trial_id: int,
+        *,
+        actor: Actor | None = None,
+        ceilings: HardwareCeilings | None = None,
+    ) -> PreviewJobRead:
+        """Queue a preview of the trial's current schedule (checked against its limits and
+        the robot's ceilings). When it has run to the end it is recorded (``previews``: who,
+        when, the schedule's hash, the hold setting): what ``actor`` may then confirm."""
         with db.read() as s:
             trial = get_trial(s, trial_id)
             exp = trial.experiment
-            sched = check_schedule_safe(exp, trial.pressure_schedule_pa, trial.release_step)
+            sched = check_schedule_safe(
+                exp, trial.pressure_schedule_pa, trial.release_step, ceilings=ceilings
+            )
             job = PreviewJob(
                 job_id=uuid.uuid4().hex,
                 trial_id=trial.id,
@@ -307,6 +356,8 @@ class PreviewRunner:
                 schedule=sched,
                 release_step=trial.release_step,
                 schedule_hash=schedule_hash(sched, trial.release_step),
+                previewed_by=actor.username if actor is not None else "",
+                db=db if actor is not None else None,
             )
         with self._lock:
             self._jobs[job.job_id] = job
@@ -336,6 +387,8 @@ class PreviewRunner:
                 "bend_limit_hits": [int(j) for j in res.bend_limit_hits],
                 "trajectory": npz_to_json(raw),
             }
+            if job.db is not None:
+                record_preview(job)
             job.status, job.progress = "done", 1.0
         except SimulationDiverged as exc:
             job.status, job.error = "error", f"simulation diverged: {exc}"

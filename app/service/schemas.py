@@ -16,11 +16,38 @@ from app.db.models import AuditLog, Experiment, Trial
 from app.optim.methods import DEFAULT_METHOD
 from app.policy import N_CHAMBERS, TaskName, policy_dim, schedule_hash
 
+DEFAULT_SOURCES = {"tip_speed": "tracker", "throw": "tape", "hammer": "tape"}
+
+
+def default_objective_sources(task: str, target: str) -> list[str]:
+    """The sources an objective is made of unless the experiment says otherwise: on hardware
+    the tape (throw, hammer) or the tracker (tip speed); in simulation the simulator (and a
+    value a script posts for a sim trial, as tape: a sim trial has one source or the other)."""
+    if target == "sim":
+        return ["sim", "tape", "imported"]
+    return [DEFAULT_SOURCES[task], "imported"]
+
+
+def objective_sources_of(exp: Experiment) -> list[str]:
+    """The experiment's objective sources (its own, else the default for task and target)."""
+    return sources_list(exp.objective_sources, exp.task, exp.target)
+
+
+def sources_list(stored: str | None, task: str, target: str) -> list[str]:
+    """A stored ``objective_sources`` (comma-separated, or None: the default) as a list."""
+    if stored:
+        return stored.split(",")
+    return default_objective_sources(task, target)
+
+
 Target = Literal["sim", "hardware"]
 CommandHold = Literal["zero", "linear"]  # app.sim.COMMAND_HOLDS (not imported: it loads MuJoCo)
 ExperimentStatus = Literal["active", "paused", "completed", "archived"]
 Acquisition = Literal["logei", "ucb", "qlognei"]
 Unit = Literal["m", "m/s", "N", "score"]
+#: what measured a repeat: the operator's tape, the robot's tip tracker, the simulator, or an
+#: imported observation
+Source = Literal["tape", "tracker", "sim", "imported"]
 
 
 # Control characters other than tab and newlines (NUL first: PostgreSQL cannot store it), and
@@ -86,6 +113,13 @@ class ExperimentCreate(_In):
     objective_unit: Unit | None = Field(
         None, description="unit of measurements; default m/s for tip_speed, else score"
     )
+    objective_sources: list[Source] | None = Field(
+        None,
+        min_length=1,
+        max_length=4,
+        description="measurement sources the objective is made of; default: tape (throw, "
+        "hammer on hardware), tracker (tip_speed on hardware), sim and tape (sim), and imported",
+    )
 
 
 class ExperimentPatch(_In):
@@ -112,6 +146,7 @@ class ExperimentRead(BaseModel):
     sim_preset: str
     command_hold: str
     objective_unit: str
+    objective_sources: list[str]
     levels: int
     horizon: int
     with_release: bool
@@ -134,6 +169,12 @@ class ExperimentRead(BaseModel):
     status_counts: dict[str, int] = Field(default_factory=dict)
     best_objective: float | None = None
     best_trial_id: int | None = None
+    best_trial_index: int | None = None
+    #: trials that ran and await a measurement from the objective's sources
+    n_awaiting_measurement: int = 0
+    #: trials that count against the budget (all but abandoned), and whether it is reached
+    n_budget_used: int = 0
+    budget_reached: bool = False
 
     @classmethod
     def build(
@@ -141,9 +182,10 @@ class ExperimentRead(BaseModel):
         exp: Experiment,
         *,
         status_counts: dict[str, int] | None = None,
-        best: tuple[int, float] | None = None,
+        best: tuple[int, float] | tuple[int, float, int] | None = None,
     ) -> ExperimentRead:
         counts = status_counts or {}
+        used = sum(v for k, v in counts.items() if k not in ("abandoned", "awaiting_measurement"))
         limits = None
         if exp.limits_nominal_pa is not None:
             assert exp.limits_max_step_pa is not None and exp.limits_source_pa is not None
@@ -160,6 +202,7 @@ class ExperimentRead(BaseModel):
             sim_preset=exp.sim_preset,
             command_hold=exp.command_hold,
             objective_unit=exp.objective_unit,
+            objective_sources=objective_sources_of(exp),
             levels=exp.levels,
             horizon=exp.horizon,
             with_release=exp.with_release,
@@ -178,10 +221,14 @@ class ExperimentRead(BaseModel):
             created_by=exp.created_by,
             created_at=exp.created_at,
             updated_at=exp.updated_at,
-            n_trials=sum(counts.values()),
-            status_counts=counts,
+            n_trials=sum(v for k, v in counts.items() if k != "awaiting_measurement"),
+            status_counts={k: v for k, v in counts.items() if k != "awaiting_measurement"},
             best_objective=best[1] if best else None,
             best_trial_id=best[0] if best else None,
+            best_trial_index=best[2] if best is not None and len(best) > 2 else None,
+            n_awaiting_measurement=counts.get("awaiting_measurement", 0),
+            n_budget_used=used,
+            budget_reached=exp.budget is not None and used >= exp.budget,
         )
 
 
@@ -225,6 +272,24 @@ class RepeatIn(_In):
     value: float
     unit: Unit
     note: str = Field("", max_length=2000)
+    source: Literal["tape", "tracker"] | None = Field(
+        None, description="what measured it; default: the experiment's first objective source"
+    )
+
+
+class WithdrawIn(_In):
+    """Withdraw a repeat (kept, no longer counted), with the operator's reason."""
+
+    reason: str = Field(min_length=1, max_length=2000)
+
+
+class SupersedeIn(_In):
+    """Replace a repeat by a corrected value (the old one is kept, withdrawn), with a reason."""
+
+    value: float
+    unit: Unit
+    note: str = Field("", max_length=2000)
+    reason: str = Field(min_length=1, max_length=2000)
 
 
 class MeasurementsIn(_In):
@@ -256,6 +321,10 @@ class MeasurementRead(BaseModel):
     source: str
     created_by: str
     created_at: datetime
+    withdrawn_at: datetime | None = None
+    withdrawn_by: str | None = None
+    withdrawn_reason: str | None = None
+    supersedes_id: int | None = None
 
 
 class AuditRead(BaseModel):
@@ -364,17 +433,35 @@ class MeasurementReceipt(BaseModel):
         )
 
 
+class PreviewRead(BaseModel):
+    """A finished preview of a trial's schedule: what a confirmation is bound to."""
+
+    model_config = ConfigDict(from_attributes=True)
+
+    schedule_hash: str
+    hold: str | None
+    sim_preset: str
+    job_id: str
+    predicted_objective: float | None
+    previewed_by: str
+    previewed_at: datetime
+
+
 class TrialDetail(TrialRead):
-    """A trial with its raw measurements and its audit trail."""
+    """A trial with its raw measurements, its previews and its audit trail."""
 
     measurements: list[MeasurementRead]
+    previews: list[PreviewRead] = Field(default_factory=list)
     audit: list[AuditRead]
 
     @classmethod
-    def build_detail(cls, t: Trial, audit: list[AuditLog]) -> TrialDetail:
+    def build_detail(
+        cls, t: Trial, audit: list[AuditLog], previews: list[Any] | None = None
+    ) -> TrialDetail:
         return cls(
             **dict(TrialRead.build(t)),
             measurements=[MeasurementRead.model_validate(m) for m in t.measurements],
+            previews=[PreviewRead.model_validate(p) for p in previews or []],
             audit=[AuditRead.model_validate(a) for a in audit],
         )
 
@@ -397,8 +484,13 @@ class ModelRead(BaseModel):
     incumbent_theta: list[float] | None
     incumbent_objective: float | None
     incumbent_trial_id: int | None
+    incumbent_trial_index: int | None = Field(None, description="the trial's number (index)")
     slices: list[SliceRead]
     message: str = ""
+    n_refused: int = Field(0, description="abandoned trials: never suggested again")
+    refused_penalty: float | None = Field(
+        None, description="the objective the model is told each abandoned trial scored"
+    )
 
 
 # --- workers, leases, results ----------------------------------------------------------------

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -13,7 +13,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.db.base import utcnow
-from app.db.models import AuditLog, Confirmation, Experiment, Lease, Trial
+from app.db.models import AuditLog, Confirmation, Experiment, Lease, Preview, Trial
 from app.db.session import Database
 from app.optim import (
     Observation,
@@ -24,6 +24,7 @@ from app.optim import (
     build_optimizer,
 )
 from app.policy import (
+    HardwareCeilings,
     Policy,
     PolicyError,
     PressureLimitError,
@@ -38,9 +39,16 @@ from app.service.errors import (
     Conflict,
     InvalidInput,
     NotFound,
+    NotPreviewed,
     SafetyViolation,
 )
-from app.service.experiments import get_experiment, optimizer_spec, policy_of, touch
+from app.service.experiments import (
+    get_experiment,
+    limits_of,
+    optimizer_spec,
+    policy_of,
+    touch,
+)
 from app.service.schemas import ResolveIn, TrialDetail, TrialRead
 
 
@@ -60,7 +68,10 @@ def read_trial(session: Session, trial_id: int) -> TrialDetail:
     audit = list(
         session.scalars(select(AuditLog).where(AuditLog.trial_id == trial.id).order_by(AuditLog.id))
     )
-    return TrialDetail.build_detail(trial, audit)
+    previews = list(
+        session.scalars(select(Preview).where(Preview.trial_id == trial.id).order_by(Preview.id))
+    )
+    return TrialDetail.build_detail(trial, audit, previews)
 
 
 def list_trials(
@@ -104,8 +115,36 @@ def decode_checked(policy: Policy, theta: Any) -> tuple[np.ndarray, np.ndarray, 
     return np.asarray(theta, dtype=np.float64), decoded.pressure_schedule_pa, decoded.release_step
 
 
-def check_schedule_safe(exp: Experiment, schedule: Any, release_step: int | None) -> np.ndarray:
-    """Re-check a stored/forged schedule against the experiment's limits (SafetyViolation)."""
+DEFAULT_CEILINGS = HardwareCeilings()
+
+
+def check_ceilings(
+    exp: Experiment, schedule: np.ndarray, ceilings: HardwareCeilings | None
+) -> None:
+    """A hardware experiment's limits and schedule within the robot's absolute ceilings
+    (the server's settings; the paper robot's when None), whatever the experiment says."""
+    if exp.target != "hardware":
+        return
+    ceilings = ceilings or DEFAULT_CEILINGS
+    limits = limits_of(exp)
+    if limits is None:
+        raise SafetyViolation("hardware experiment carries no pressure limits")
+    try:
+        ceilings.check_limits(limits)
+        ceilings.check_schedule(schedule, np.asarray(limits.nominal_pa))
+    except PolicyError as exc:
+        raise SafetyViolation(f"beyond the robot's hardware ceilings: {exc}") from None
+
+
+def check_schedule_safe(
+    exp: Experiment,
+    schedule: Any,
+    release_step: int | None,
+    *,
+    ceilings: HardwareCeilings | None = None,
+) -> np.ndarray:
+    """Re-check a stored/forged schedule against the experiment's limits and the robot's
+    ceilings (SafetyViolation)."""
     policy = policy_of(exp)
     try:
         sched = policy.check(np.asarray(schedule, dtype=np.float64))
@@ -113,6 +152,7 @@ def check_schedule_safe(exp: Experiment, schedule: Any, release_step: int | None
         raise SafetyViolation(f"schedule beyond the pressure limits: {exc}") from None
     except (PolicyError, ValueError, TypeError) as exc:
         raise SafetyViolation(f"schedule refused: {exc}") from None
+    check_ceilings(exp, sched, ceilings)
     try:
         check_release_step(
             release_step,
@@ -157,9 +197,11 @@ def _new_trial(
     note: str = "",
     predicted: tuple[float, float] | None = None,
     initial_status: str | None = None,
+    ceilings: HardwareCeilings | None = None,
 ) -> Trial:
     """Create a trial (proposed), then move it on: sim → queued, hardware → awaiting."""
     th, schedule, release = decode_checked(policy_of(exp), theta)
+    check_ceilings(exp, schedule, ceilings)
     now = utcnow()
     trial = Trial(
         experiment_id=exp.id,
@@ -206,8 +248,14 @@ class OptimizerInputs:
     spec: OptimizerSpec
     observations: list[Observation]  # in trial index order
     pending: np.ndarray | None  # (k, dim)
-    observed_ids: tuple[int, ...]  # trials behind ``observations``
+    observed_ids: tuple[int, ...]  # trials behind ``observations`` (refused ones included)
     pending_ids: frozenset[int]  # trials behind ``pending``
+    #: schedule hashes of abandoned trials: never suggested again
+    refused_hashes: frozenset[str] = frozenset()
+    #: the objective an abandoned trial counts as (below the worst seen), None before any
+    #: measurement (then abandoned θ count as pending: taken, never to be suggested)
+    refused_penalty: float | None = None
+    refused_ids: tuple[int, ...] = ()
 
     @property
     def dim(self) -> int:
@@ -215,8 +263,20 @@ class OptimizerInputs:
         return self.spec.dim
 
 
+def refusal_penalty(values: list[float]) -> float | None:
+    """What an abandoned trial counts as: the worst objective seen minus the objectives'
+    spread (their magnitude when they are all equal), so the model learns the region was
+    refused. None without any objective."""
+    if not values:
+        return None
+    lo, hi = min(values), max(values)
+    spread = hi - lo if hi > lo else max(abs(lo), 1.0)
+    return lo - spread
+
+
 def optimizer_inputs(session: Session, exp: Experiment) -> OptimizerInputs:
-    """Completed trials with an objective (executed θ when reported) and pending θ."""
+    """Completed trials with an objective (executed θ when reported), pending θ, and the
+    abandoned trials (refused by an operator) as penalised observations."""
     trials = list(
         session.scalars(select(Trial).where(Trial.experiment_id == exp.id).order_by(Trial.index))
     )
@@ -224,6 +284,7 @@ def optimizer_inputs(session: Session, exp: Experiment) -> OptimizerInputs:
     pending = []
     observed_ids: list[int] = []
     pending_ids: set[int] = set()
+    refused: list[Trial] = []
     for t in trials:
         if t.status == lc.COMPLETED and t.objective is not None:
             observed_ids.append(t.id)
@@ -240,13 +301,26 @@ def optimizer_inputs(session: Session, exp: Experiment) -> OptimizerInputs:
             # unknown.
             pending.append(t.theta)
             pending_ids.add(t.id)
+        elif t.status == lc.ABANDONED:
+            refused.append(t)
+    penalty = refusal_penalty([o.value for o in obs])
+    for t in refused:
+        if penalty is None:
+            pending.append(t.theta)
+        else:
+            obs.append(Observation(tuple(float(v) for v in t.theta), penalty, None))
     spec = optimizer_spec(exp)
     return OptimizerInputs(
         spec=spec,
         observations=obs,
         pending=np.asarray(pending, dtype=np.float64).reshape(-1, spec.dim) if pending else None,
-        observed_ids=tuple(observed_ids),
+        observed_ids=tuple(observed_ids) + tuple(t.id for t in refused),
         pending_ids=frozenset(pending_ids),
+        refused_hashes=frozenset(
+            schedule_hash(t.pressure_schedule_pa, t.release_step) for t in refused
+        ),
+        refused_penalty=penalty if refused else None,
+        refused_ids=tuple(t.id for t in refused),
     )
 
 
@@ -292,6 +366,61 @@ def ask(
     return thetas, mean, std
 
 
+def ask_avoiding_refused(
+    inputs: OptimizerInputs,
+    policy: Policy,
+    n: int,
+    *,
+    timings: dict[str, float] | None = None,
+    ask_once: Callable[[OptimizerInputs, int], tuple[Any, Any, Any]] | None = None,
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """``ask`` (or ``ask_once(inputs, n)``: the server's, in a compute process), never
+    returning a θ that decodes to an abandoned trial's schedule (nor two equal schedules in
+    one batch): such θ are handed back to the optimiser as pending and
+    it is asked again; after 3 rounds a seeded random θ with a new schedule takes the place.
+    """
+    if ask_once is None:
+
+        def ask_once(inp: OptimizerInputs, k: int) -> tuple[Any, Any, Any]:
+            return ask(inp, k, timings=timings)
+
+    if not inputs.refused_hashes:
+        return ask_once(inputs, n)
+
+    def key(theta: np.ndarray) -> str:
+        d = policy.decode(theta)
+        return schedule_hash(d.pressure_schedule_pa, d.release_step)
+
+    extra: list[np.ndarray] = []
+    for _ in range(3):
+        pend = inputs.pending
+        if extra:
+            more = np.asarray(extra, dtype=np.float64).reshape(-1, inputs.dim)
+            pend = more if pend is None else np.concatenate([pend, more])
+        thetas, mean, std = ask_once(replace(inputs, pending=pend), n)
+        seen = set(inputs.refused_hashes)
+        bad = []
+        for i, th in enumerate(thetas):
+            h = key(th)
+            if h in seen:
+                bad.append(i)
+            seen.add(h)
+        if not bad:
+            return thetas, mean, std
+        extra.extend(thetas[i] for i in bad)
+    rng = np.random.default_rng([inputs.spec.seed, len(inputs.observations), len(extra)])
+    for i in bad:
+        for _ in range(10_000):
+            th = rng.random(inputs.dim)
+            if key(th) not in seen:
+                break
+        thetas[i] = th
+        seen.add(key(th))
+        if mean is not None and std is not None:
+            mean[i] = std[i] = np.nan
+    return thetas, mean, std
+
+
 def suggest(
     db: Database,
     experiment_id: int,
@@ -299,6 +428,7 @@ def suggest(
     *,
     actor: Actor,
     timings: dict[str, float] | None = None,
+    ceilings: HardwareCeilings | None = None,
     asker: Callable[[OptimizerInputs, int], tuple[Any, Any, Any, float]] | None = None,
 ) -> list[TrialRead]:
     """Ask the optimiser for ``n`` trials given the completed and pending ones; store them.
@@ -316,12 +446,17 @@ def suggest(
             exp = get_experiment(s, experiment_id)
             _check_can_add(s, exp, n)
             inputs = optimizer_inputs(s, exp)
-        if asker is None:
-            thetas, mean, std = ask(inputs, n, timings=timings)
-        else:
-            thetas, mean, std, opt_s = asker(inputs, n)
+            policy = policy_of(exp)
+
+        def ask_once(inp: OptimizerInputs, k: int) -> tuple[Any, Any, Any]:
+            if asker is None:
+                return ask(inp, k, timings=timings)
+            thetas, mean, std, opt_s = asker(inp, k)
             if timings is not None:
                 timings["optimizer_s"] = timings.get("optimizer_s", 0.0) + opt_s
+            return thetas, mean, std
+
+        thetas, mean, std = ask_avoiding_refused(inputs, policy, n, ask_once=ask_once)
         with db.write() as s:
             exp = get_experiment(s, experiment_id, for_update=True)
             now = optimizer_inputs(s, exp)
@@ -333,7 +468,9 @@ def suggest(
             index = _next_index(s, exp)
             trials = []
             for i in range(n):
-                predicted = None if mean is None or std is None else (mean[i], std[i])
+                predicted = None
+                if mean is not None and std is not None and np.isfinite(mean[i]):
+                    predicted = (mean[i], std[i])
                 trials.append(
                     _new_trial(
                         s,
@@ -343,6 +480,7 @@ def suggest(
                         actor=actor,
                         index=index + i,
                         predicted=predicted,
+                        ceilings=ceilings,
                     )
                 )
             touch(exp)
@@ -352,7 +490,13 @@ def suggest(
 
 
 def attach(
-    session: Session, experiment_id: int, theta: list[float], *, note: str, actor: Actor
+    session: Session,
+    experiment_id: int,
+    theta: list[float],
+    *,
+    note: str,
+    actor: Actor,
+    ceilings: HardwareCeilings | None = None,
 ) -> TrialRead:
     """Add a trial with an operator-chosen θ (checked like any other)."""
     exp = get_experiment(session, experiment_id, for_update=True)
@@ -367,6 +511,7 @@ def attach(
         index=_next_index(session, exp),
         note=note,
         predicted=predicted,
+        ceilings=ceilings,
     )
     touch(exp)
     session.flush()
@@ -440,7 +585,7 @@ def resolve(session: Session, trial_id: int, body: ResolveIn, *, actor: Actor) -
     trial = get_trial(session, trial_id, for_update=True)
     if trial.status != lc.NEEDS_REVIEW:
         raise lc.IllegalTransition(
-            f"cannot resolve: trial {trial.id} is {trial.status}, not needs_review",
+            f"cannot resolve: trial #{trial.index} is {trial.status}, not needs_review",
             current=trial.status,
         )
     exp = trial.experiment
@@ -455,7 +600,7 @@ def resolve(session: Session, trial_id: int, body: ResolveIn, *, actor: Actor) -
     elif body.decision == "complete":
         if trial.objective is None:
             raise Conflict(
-                f"cannot complete trial {trial.id}: it has no measurement; post one first"
+                f"cannot complete trial #{trial.index}: it has no measurement; post one first"
             )
         new = lc.COMPLETED
     elif body.decision == "fail":
@@ -477,25 +622,56 @@ def resolve(session: Session, trial_id: int, body: ResolveIn, *, actor: Actor) -
     return out
 
 
-def confirm(session: Session, trial_id: int, given_hash: str, *, actor: Actor) -> TrialRead:
+def check_previewed(session: Session, trial: Trial, current_hash: str, *, actor: Actor) -> None:
+    """NotPreviewed unless ``actor`` ran a preview of exactly this schedule (hash) with the
+    experiment's current command-hold setting."""
+    hold = trial.experiment.command_hold
+    previews = session.execute(
+        select(Preview.schedule_hash, Preview.hold).where(
+            Preview.trial_id == trial.id, Preview.previewed_by == actor.username
+        )
+    ).all()
+    if any(h == current_hash and p_hold == hold for h, p_hold in previews):
+        return
+    if any(h == current_hash for h, _ in previews):
+        why = "you previewed it with another command-hold setting"
+    elif previews:
+        why = "your preview was of a different schedule"
+    else:
+        why = "you have not previewed it"
+    raise NotPreviewed(
+        f"cannot confirm trial #{trial.index}: {why}; preview exactly "
+        f"this schedule ({current_hash[:12]}…) in 3D, look at it, then confirm"
+    )
+
+
+def confirm(
+    session: Session,
+    trial_id: int,
+    given_hash: str,
+    *,
+    actor: Actor,
+    ceilings: HardwareCeilings | None = None,
+) -> TrialRead:
     """An operator's go-ahead for exactly this schedule (hash), re-checked against the limits."""
     trial = get_trial(session, trial_id, for_update=True)
     exp = trial.experiment
     if exp.target != "hardware":
-        raise Conflict(f"trial {trial.id} is a sim trial; only hardware trials are confirmed")
+        raise Conflict(f"trial #{trial.index} is a sim trial; only hardware trials are confirmed")
     lc.check_transition(trial, lc.QUEUED, action="confirm")
     if trial.status != lc.AWAITING_CONFIRMATION:
         raise lc.IllegalTransition(
-            f"cannot confirm: trial {trial.id} is {trial.status}, not awaiting_confirmation",
+            f"cannot confirm: trial #{trial.index} is {trial.status}, not awaiting_confirmation",
             current=trial.status,
         )
     current = schedule_hash(trial.pressure_schedule_pa, trial.release_step)
     if given_hash != current:
         raise ConfirmationMismatch(
-            f"schedule_hash {given_hash[:12]}… is not trial {trial.id}'s current schedule "
+            f"schedule_hash {given_hash[:12]}… is not trial #{trial.index}'s current schedule "
             f"({current[:12]}…); reload the trial and confirm what it will run"
         )
-    check_schedule_safe(exp, trial.pressure_schedule_pa, trial.release_step)
+    check_schedule_safe(exp, trial.pressure_schedule_pa, trial.release_step, ceilings=ceilings)
+    check_previewed(session, trial, current, actor=actor)
     now = utcnow()
     session.add(
         Confirmation(

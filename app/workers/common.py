@@ -136,9 +136,17 @@ class LeaseKeeper:
     refuse (it posts anyway for hardware, so the refusal is on record).
     """
 
-    def __init__(self, heartbeat: Callable[[str], Any], interval_s: float) -> None:
+    def __init__(
+        self,
+        heartbeat: Callable[[str], Any],
+        interval_s: float,
+        on_lost: Callable[[str], Any] | None = None,
+    ) -> None:
         self._heartbeat = heartbeat
         self.interval_s = interval_s
+        #: called (on the heartbeat thread) with a lease the server calls lost, e.g. revoked
+        #: because an operator stopped the trial: the hardware worker aborts the driver
+        self._on_lost = on_lost
         self._leases: set[str] = set()
         self.lost: set[str] = set()
         self._lock = threading.Lock()
@@ -180,6 +188,8 @@ class LeaseKeeper:
                 with self._lock:
                     self._leases.discard(lease_id)
                     self.lost.add(lease_id)
+                if self._on_lost is not None:
+                    self._on_lost(lease_id)
 
     def _run(self) -> None:
         while not self._stop.wait(self.interval_s):

@@ -15,6 +15,7 @@ import numpy as np
 from app.policy import (
     N_CHAMBERS,
     TASKS,
+    HardwareCeilings,
     Policy,
     PolicyError,
     PressureLimits,
@@ -67,6 +68,7 @@ def gate_hardware_trial(
     *,
     trial_id: int | None = None,
     robot_max_pa: float | None = None,
+    robot_ceilings: HardwareCeilings | None = None,
 ) -> DriverCommand:
     """Check a claimed hardware trial end to end; return the one command the driver may run.
 
@@ -74,7 +76,9 @@ def gate_hardware_trial(
     (H, 12), finite and inside nominal ± max step within [0, source]; the release step fits the
     policy; θ decodes to exactly this schedule; a confirmation (who, when, hash) is on record and
     its hash equals `schedule_hash` of the schedule about to be sent. `robot_max_pa` (the
-    driver's own ceiling, independent of anything the server says) caps every chamber too.
+    driver's own ceiling, independent of anything the server says) caps every chamber too, and
+    `robot_ceilings` (the driver's declared source, maximum step and chamber maximum) bound both
+    the experiment's limits and the schedule.
 
     Raises:
         SafetyRefusal: naming the first check that failed.
@@ -104,6 +108,13 @@ def gate_hardware_trial(
             f"schedule peaks at {float(schedule.max()):.1f} Pa, above the robot's own ceiling "
             f"of {robot_max_pa:.1f} Pa"
         )
+
+    if robot_ceilings is not None:
+        try:
+            robot_ceilings.check_limits(policy.limits)
+            robot_ceilings.check_schedule(schedule, np.asarray(policy.limits.nominal_pa))
+        except PolicyError as exc:
+            raise SafetyRefusal(f"beyond the robot's own ceilings: {exc}") from None
 
     release = trial.get("release_step")
     try:

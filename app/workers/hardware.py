@@ -31,6 +31,8 @@ from app.workers.objective import tip_speed_from_tracking
 from app.workers.sim import _heartbeat_period
 
 log = logging.getLogger("handful.worker.hardware")
+#: longest time between heartbeats while a trial runs: how soon an operator's Stop reaches it
+STOP_POLL_S = 1.0
 
 
 @dataclass
@@ -56,6 +58,7 @@ def execute_claim(driver: Driver, claim: dict[str, Any]) -> HardwareOutcome:
             experiment,
             trial_id=trial.get("id"),
             robot_max_pa=getattr(driver, "max_pressure_pa", None),
+            robot_ceilings=getattr(driver, "ceilings", None),
         )
     except SafetyRefusal as exc:
         log.error("refused trial %s: %s", trial.get("id"), exc)
@@ -146,8 +149,13 @@ class HardwareWorker:
 
     def run_one(self, claim: dict[str, Any]) -> HardwareOutcome:
         """Run one claim with its lease heartbeated throughout; post its result."""
+        # Heartbeat at least every STOP_POLL_S: a lease revoked by an operator's Stop (the
+        # trial failed with a reason) is noticed within that time and the driver aborts
+        # (vents to nominal).
         keeper = LeaseKeeper(
-            lambda lid: self.client.heartbeat(lid), self.heartbeat_s or _heartbeat_period(claim)
+            lambda lid: self.client.heartbeat(lid),
+            self.heartbeat_s or min(_heartbeat_period(claim), STOP_POLL_S),
+            on_lost=lambda lid: self._stop_driver(lid),
         )
         keeper.add(claim["lease_id"])
         keeper.start()
@@ -175,6 +183,10 @@ class HardwareWorker:
         else:
             self.faulted += 1
         return outcome
+
+    def _stop_driver(self, lease_id: str) -> None:
+        log.warning("lease %s revoked (trial stopped by an operator): aborting", lease_id)
+        self.driver.abort()
 
     def run(self, *, max_trials: int | None = None, idle_exit_s: float | None = None) -> int:
         """Work until stopped (or `max_trials` run, or idle `idle_exit_s`); return trials run."""

@@ -58,9 +58,9 @@ def test_measurements_keep_every_repeat_and_give_mean_and_sem(api, queued):
     assert [m["value"] for m in receipt["stored"]] == [6.0]
     t = api.get_trial(trial["id"])
     assert [(m["value"], m["source"], m["created_by"]) for m in t["measurements"]] == [
-        (2.0, "operator", "operator"),
-        (4.0, "operator", "operator"),
-        (6.0, "operator", "operator"),
+        (2.0, "tape", "operator"),
+        (4.0, "tape", "operator"),
+        (6.0, "tape", "operator"),
     ]
     assert t["measurements"][0]["note"] == "first"
     assert t["measurements"][2]["id"] == receipt["stored"][0]["id"]
@@ -124,7 +124,7 @@ def test_a_retry_after_a_lost_reply_stores_once_and_gets_the_first_receipt(live_
         ([{"value": 1.0, "unit": "furlongs"}], "unit"),
         ([], "repeats"),
         ([{"value": "fast", "unit": "m/s"}], "value"),
-        ([{"value": 1.0, "unit": "m/s"}, {"value": -3.0, "unit": "m/s"}], "repeats[1]"),
+        ([{"value": 1.0, "unit": "m/s"}, {"value": -3.0, "unit": "m/s"}], "repeat 2"),
     ],
 )
 def test_bad_measurements_are_refused_whole(api, queued, repeats, words):
@@ -202,7 +202,7 @@ def test_fail_abandon_and_illegal_transitions(api, new_exp):
     t = api.fail_trial(a["id"], "the arm hit the table")
     assert t["status"] == "failed" and t["status_reason"] == "the arm hit the table"
     err = error_of(api.abandon_trial, a["id"], "x")
-    assert err.status == 409 and f"trial {a['id']} is failed" in err.detail
+    assert err.status == 409 and f"trial #{a['index']} is failed" in err.detail
     t = api.abandon_trial(b["id"], "bad idea")
     assert t["status"] == "abandoned"
     err = error_of(api.fail_trial, b["id"], "x")
@@ -287,7 +287,7 @@ def test_confirm_binds_the_exact_schedule(api, new_exp):
     assert err.status == 409 and err.code == "confirmation_mismatch"
     err = error_of(api.confirm_trial, trial["id"], "not-a-hash")
     assert err.status == 422
-    t = api.confirm_trial(trial["id"], trial["schedule_hash"])
+    t = api.preview_and_confirm(trial)
     assert t["status"] == "queued" and t["confirmed_by"] == "operator"
     assert t["confirmed_hash"] == trial["schedule_hash"] and t["confirmed_at"]
     err = error_of(api.confirm_trial, trial["id"], trial["schedule_hash"])

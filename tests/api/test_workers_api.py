@@ -69,9 +69,7 @@ def test_sim_claim_heartbeat_result(op, worker, new_exp):
     assert t["status"] == "completed" and t["objective"] == 2.5 and t["has_trajectory"]
     assert t["executed_theta"] == trial["theta"]  # it ran the plan: the planned θ
     detail = op.get_trial(trial["id"])
-    assert [(m["source"], m["created_by"]) for m in detail["measurements"]] == [
-        ("worker", "worker")
-    ]
+    assert [(m["source"], m["created_by"]) for m in detail["measurements"]] == [("sim", "worker")]
     assert op.trajectory(trial["id"])["tip_speed_m_s"] == [2.5] * 11
     # idempotent per lease: the same report again gives the same reply and stores nothing
     assert worker.report_result(trial["id"], c["lease_id"], **report) == out
@@ -137,7 +135,7 @@ def test_sim_fault_fails_hardware_fault_needs_review(op, worker, new_exp):
     assert t["status"] == "failed" and "simulation diverged" in t["status_reason"]
     hw = new_exp(op, target="hardware")
     [ht] = op.suggest(hw["id"])
-    op.confirm_trial(ht["id"], ht["schedule_hash"])
+    op.preview_and_confirm(ht)
     [c] = worker.claim("hw-1", "hardware")
     t = worker.report_result(ht["id"], c["lease_id"], fault="I2C bus fault on joint 2")["trial"]
     assert t["status"] == "needs_review" and "I2C" in t["status_reason"]
@@ -146,7 +144,7 @@ def test_sim_fault_fails_hardware_fault_needs_review(op, worker, new_exp):
     t = op.resolve_trial(ht["id"], "requeue", "sensor reseated")
     assert t["status"] == "awaiting_confirmation" and t["confirmed_hash"] is None
     assert worker.claim("hw-1", "hardware") == []  # needs a fresh confirmation
-    op.confirm_trial(ht["id"], ht["schedule_hash"])
+    op.preview_and_confirm(ht)
     [c] = worker.claim("hw-1", "hardware")
     assert c["trial"]["attempts"] == 2
     worker.report_result(ht["id"], c["lease_id"], objective=3.2)
@@ -158,7 +156,7 @@ def test_hardware_gate_confirmation_and_changed_schedule(op, worker, module_serv
     a, b, c3 = op.suggest(hw["id"], n=3)
     assert worker.claim("hw", "hardware", max_trials=3) == []  # none confirmed
     for t in (a, b, c3):
-        op.confirm_trial(t["id"], t["schedule_hash"])
+        op.preview_and_confirm(t)
     # after the confirmation, b's schedule changes in the database (same limits) and c3's is
     # forged beyond the limits with a forged matching hash: neither may reach a worker
     policy = Policy(levels=3, limits=PressureLimits(nominal_pa=100_000.0))
@@ -189,7 +187,7 @@ def test_hardware_gate_confirmation_and_changed_schedule(op, worker, module_serv
 def test_executed_schedule_beyond_limits_needs_review(op, worker, new_exp):
     hw = new_exp(op, target="hardware")
     [t] = op.suggest(hw["id"])
-    op.confirm_trial(t["id"], t["schedule_hash"])
+    op.preview_and_confirm(t)
     [c] = worker.claim("hw", "hardware")
     beyond = np.asarray(t["pressure_schedule_pa"])
     beyond[3, 5] = 150_000.0
@@ -235,7 +233,7 @@ def test_resolve_complete_needs_a_measurement_and_fail_ends_it(op, worker, new_e
     hw = new_exp(op, target="hardware")
     a, b = op.suggest(hw["id"], n=2)
     for t in (a, b):
-        op.confirm_trial(t["id"], t["schedule_hash"])
+        op.preview_and_confirm(t)
     claims = {c["trial"]["id"]: c["lease_id"] for c in worker.claim("hw", "hardware", 2)}
     for t in (a, b):
         worker.report_result(t["id"], claims[t["id"]], fault="tracking lost")
@@ -254,7 +252,7 @@ def test_resolve_complete_needs_a_measurement_and_fail_ends_it(op, worker, new_e
 def test_hardware_throw_waits_for_the_operators_tape_measure(op, worker, new_exp):
     hw = new_exp(op, target="hardware", task="throw", objective_unit="m")
     [t] = op.suggest(hw["id"])
-    op.confirm_trial(t["id"], t["schedule_hash"])
+    op.preview_and_confirm(t)
     [c] = worker.claim("hw", "hardware")
     out = worker.report_result(
         t["id"],

@@ -1,6 +1,7 @@
 """An experiment's JSON bundle round-trips (issue 16, finding 7): export → import → export
-gives the same record (trials, raw measurements with who, confirmations, trajectories, audit
-log) but for ids, file paths and the import's own audit row."""
+gives the same record (trials, raw measurements with who and their corrections, previews,
+confirmations, trajectories, audit log) but for ids, file paths and the import's own audit
+row."""
 
 from __future__ import annotations
 
@@ -8,11 +9,13 @@ import json
 
 import pytest
 
+from app.db.base import utcnow
+from app.db.models import Preview
 from app.service import bundle, runs, trials
 from app.service import lifecycle as lc
 from app.service.errors import InvalidInput
-from app.service.measurements import add_measurements
-from app.service.schemas import MeasurementsIn
+from app.service.measurements import add_measurements, supersede_measurement
+from app.service.schemas import MeasurementsIn, SupersedeIn
 
 from .conftest import OPERATOR
 
@@ -22,10 +25,11 @@ def _comparable(b: dict) -> dict:
     b["experiment"].pop("id")
     for t in b["trials"]:
         t.pop("id"), t.pop("experiment_id")
-    for name in ("measurements", "confirmations", "artifacts"):
+    for name in ("measurements", "confirmations", "previews", "artifacts"):
         for r in b[name]:
             r.pop("id"), r.pop("trial_id")
             r.pop("path", None)
+            r.pop("supersedes_id", None)
     b["audit"] = [
         {k: v for k, v in r.items() if k not in ("id", "experiment_id", "trial_id", "entity_id")}
         for r in b["audit"]
@@ -49,12 +53,28 @@ def test_export_import_export_round_trips(db, make_experiment, make_trial, tmp_p
                 ]
             }
         )
-        add_measurements(s, measured, body, idempotency_key="k1", actor=OPERATOR)
+        receipt = add_measurements(s, measured, body, idempotency_key="k1", actor=OPERATOR)
+    with db.write() as s:
+        fix = SupersedeIn(value=1.8, unit="m/s", reason="misread the tape")
+        supersede_measurement(s, receipt.stored[1].id, fix, actor=OPERATOR)
+        s.add(
+            Preview(
+                trial_id=measured,
+                schedule_hash="ab" * 32,
+                hold="zero",
+                sim_preset="fast",
+                job_id="j1",
+                predicted_objective=1.6,
+                previewed_by=OPERATOR.username,
+                previewed_at=utcnow(),
+            )
+        )
     with db.write() as s:
         trials.fail(s, make_trial(exp_id, theta=[0.9] * 10), "valve stuck", actor=OPERATOR)
     with db.read() as s:
         first = bundle.export_bundle(s, exp_id, art)
-    assert len(first["trials"]) == 3 and len(first["measurements"]) == 3
+    assert len(first["trials"]) == 3 and len(first["measurements"]) == 4
+    assert len(first["previews"]) == 1
     assert first["artifacts"][0]["content_b64"] and first["audit"]
     text = json.dumps(first, allow_nan=False)  # strict JSON
     with db.write() as s:
@@ -63,6 +83,13 @@ def test_export_import_export_round_trips(db, make_experiment, make_trial, tmp_p
     with db.read() as s:
         again = bundle.export_bundle(s, new_id, art)
     assert _comparable(again) == _comparable(first)
+    # the correction points at the repeat it corrects, among the imported ones
+    ms = {m["id"]: m for m in again["measurements"]}
+    [fixed] = [m for m in ms.values() if m["supersedes_id"] is not None]
+    assert fixed["value"] == 1.8 and ms[fixed["supersedes_id"]]["withdrawn_reason"] == (
+        "misread the tape"
+    )
+    assert again["previews"][0]["trial_id"] in {t["id"] for t in again["trials"]}
     assert again["audit"][-1]["action"] == "experiment.import_bundle"
 
 

@@ -72,7 +72,7 @@ def test_a_loaded_repeats_collection_is_not_left_stale(db, make_experiment, make
         trial = s.get(Trial, tid)
         assert trial.measurements == []  # loads the collection
         store_measurement(
-            s, trial, [(1.5, "m/s", ""), (2.5, "m/s", "")], actor=OPERATOR, source="worker"
+            s, trial, [(1.5, "m/s", ""), (2.5, "m/s", "")], actor=OPERATOR, source="sim"
         )
         assert [m.value for m in trial.measurements] == [1.5, 2.5]
         assert trial.objective == 2.0 and trial.n_measurements == 2
@@ -101,7 +101,7 @@ def test_store_measurement_leaves_an_orm_trial_clean(db, make_experiment, make_t
     tid = make_trial(exp_id, status=lc.COMPLETED)
     with db.write() as s:
         trial = s.get(Trial, tid)
-        stored = store_measurement(s, trial, [(4.0, "m/s", "")], actor=OPERATOR, source="worker")
+        stored = store_measurement(s, trial, [(4.0, "m/s", "")], actor=OPERATOR, source="sim")
         assert [m.value for m in stored] == [4.0] and trial.objective == 4.0
         assert trial not in s.dirty  # in step with its row: the UPDATE already ran
         s.rollback()

@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import httpx
 import numpy as np
 import pytest
 from PIL import Image
@@ -112,18 +113,48 @@ def test_operator_loop_on_the_standin_robot(
     assert len(heat) == 12 and len(heat[0]) == 10
     assert np.allclose(np.asarray(heat) * 1000.0, np.asarray(trial["pressure_schedule_pa"]).T)
 
-    # 4. preview: a sim rollout of exactly this schedule, drawn by viser
+    # 4. confirming without a preview of this schedule is refused by the server, in words
+    page.check("#confirm-check")
+    page.click("#confirm-button")
+    page.locator("#confirm-error").filter(has_text="not previewed").wait_for()
+    assert api.get_trial(trial["id"])["status"] == "awaiting_confirmation"
+    page.screenshot(path=str(screenshots / "experiment_confirm_refused.png"))
+    page.reload()
+    page.wait_for_selector("#confirm-button")
+
+    # 4b. preview: a sim rollout of exactly this schedule, drawn by viser, next to its gate
     page.click("#preview-button")
     page.wait_for_selector("#viz-frame", timeout=120_000)
     assert "predicted max tip speed" in page.inner_text("#viz-legend")
     canvas_png = wait_for_drawn_arm(page)
     (screenshots / "preview_canvas.png").write_bytes(canvas_png)
+    page.evaluate("document.getElementById('next-card').scrollIntoView({block: 'start'})")
     page.screenshot(path=str(screenshots / "experiment_preview.png"))
+    # the preview and the gate of the same trial side by side, both in the 1280×800 viewport
+    assert page.inner_text("#viz-title") == f"preview of trial {trial['index']}"
+    assert f"trial {trial['index']}" in page.inner_text("#trial-actions h3:has-text('Safety gate')")
+    for selector in ("#confirm-button", "#viz-frame"):
+        box = page.locator(selector).bounding_box()
+        assert box is not None and box["y"] >= 0 and box["y"] + box["height"] <= 800, (
+            selector,
+            box,
+        )
+    gate, frame = (page.locator(s).bounding_box() for s in ("#confirm-button", "#viz-frame"))
+    assert gate["x"] + gate["width"] <= frame["x"]  # side by side
     viser_src = page.get_attribute("#viz-frame", "src")
-    assert viser_src.startswith("http://127.0.0.1:") and "/view/" in viser_src
+    # through the main port (proxied to viser): a lab that forwards one port keeps the 3D view
+    assert viser_src.startswith(f"{server.url}/viz/client/") and "viz%2Fws%2Fview" in viser_src
+    # framed by our own page only: the proxied client may be framed by its own origin, every
+    # other reply keeps the security headers' "no frames at all"
+    client = httpx.get(viser_src, timeout=30)
+    assert "frame-ancestors 'self'" in client.headers["content-security-policy"]
+    assert client.headers["x-frame-options"] == "SAMEORIGIN"
+    page_reply = httpx.get(f"{server.url}/experiments/{trial['experiment_id']}", timeout=30)
+    assert "frame-ancestors 'none'" in page_reply.headers["content-security-policy"]
     page.click("#viz-close")  # software WebGL is heavy on a small CI machine
 
     # 5. confirm: the page sends the hash of the schedule it showed
+    page.uncheck("#confirm-check")
     page.click("#confirm-button")
     assert "Tick the box" in page.inner_text("#confirm-error")
     assert api.get_trial(trial["id"])["status"] == "awaiting_confirmation"
@@ -181,7 +212,9 @@ def test_operator_loop_on_the_standin_robot(
     # a live update while the operator types (here: a colleague's measurement from a script)
     # re-renders the card but keeps the repeats being typed
     api.add_measurements(trial["id"], [{"value": 1.50, "unit": "m", "note": "from a script"}])
-    page.get_by_text("Enter measurement (has 1)").wait_for(timeout=20_000)
+    page.get_by_text(f"Enter measurement for trial {trial['index']} (has 1)").wait_for(
+        timeout=20_000
+    )
     assert page.input_value("input[aria-label='repeat 1 value']") == "1.52"
     assert page.input_value("input[aria-label='repeat 2 note']") == "second tape"
     page.click("#measure-save")
@@ -211,10 +244,38 @@ def test_operator_loop_on_the_standin_robot(
     csv_lines = Path(download.value.path()).read_text().strip().splitlines()
     assert len(csv_lines) == 2 and "objective" in csv_lines[0]
 
-    # the trial page: full record, trajectory plots, and a 3D replay
+    # the trial page: full record, each source apart, a correction, trajectory, 3D replay
+    # (a tracker's value, e.g. from a script, is shown apart and not averaged with the tape)
+    api.add_measurements(trial["id"], [{"value": 3.0, "unit": "m", "source": "tracker"}])
+    measured = api.get_trial(trial["id"])
+    assert measured["objective"] == pytest.approx(float(np.mean(values)))
     page.goto(f"{server.url}/trials/{trial['id']}")
     page.wait_for_selector("#measurements-table td.m-value")
-    assert page.locator("#measurements-table tbody tr").count() == len(values)
+    assert page.locator("#measurements-table tbody tr").count() == len(measured["measurements"])
+    page.locator("#sources-summary li[data-source='tape']").filter(
+        has_text="makes the objective"
+    ).wait_for()
+    assert "not in the objective" in page.inner_text("#sources-summary li[data-source='tracker']")
+    typo = next(m for m in measured["measurements"] if m["value"] == 1.52)
+    row = page.locator(f"#measurements-table tr[data-measurement-id='{typo['id']}']")
+    row.locator(".c-correct").click()
+    row.locator(".c-value").fill("1,25")
+    row.locator(".c-reason").fill("read the tape from the wrong end")
+    row.locator(".c-save").click()
+    row.locator(".c-error").filter(has_text="type the decimals after a point (1.25)").wait_for()
+    row.locator(".c-value").fill("1.25")
+    row.locator(".c-save").click()
+    page.locator(f"#measurements-table tr.withdrawn[data-measurement-id='{typo['id']}']").wait_for()
+    corrected = api.get_trial(trial["id"])
+    counted = [
+        m["value"]
+        for m in corrected["measurements"]
+        if m["source"] == "tape" and m["withdrawn_at"] is None
+    ]
+    assert sorted(counted) == sorted([1.50, 1.48, 1.25])
+    assert corrected["objective"] == pytest.approx(float(np.mean(counted)))
+    page.locator("#trial-facts").filter(has_text=fmt(corrected["objective"])).wait_for()
+    page.screenshot(path=str(screenshots / "trial_corrected.png"), full_page=True)
     assert page.locator("#audit-table tbody tr").count() >= 3
     assert "trial.confirm" in page.inner_text("#audit-table")
     if measured["has_trajectory"]:
@@ -225,8 +286,25 @@ def test_operator_loop_on_the_standin_robot(
     page.screenshot(path=str(screenshots / "trial.png"), full_page=True)
     page.click("#viz-close")
 
+    # back on the experiment page: table and plot show the corrected objective, and the
+    # next suggestion is made from the corrected data
+    page.goto(f"{server.url}/experiments/{experiment_id}")
+    sem = float(np.std(counted, ddof=1) / math.sqrt(len(counted)))
+    cell = page.locator(f"tr[data-trial-id='{trial['id']}'] td.objective")
+    cell.filter(has_text=f"{fmt(corrected['objective'])} ± {fmt(sem)}").wait_for()
+    plotted = page.evaluate("document.getElementById('best-plot').data[0].y")
+    assert plotted == pytest.approx([corrected["objective"]])
+    page.click("#suggest-button")
+    page.locator("#next-title").filter(has_text="trial 2").wait_for()
+    model = api.model(experiment_id)
+    assert model["incumbent_objective"] == pytest.approx(corrected["objective"])
+    assert [t["index"] for t in api.list_trials(experiment_id)] == [1, 2]
+    page.screenshot(path=str(screenshots / "experiment_corrected.png"), full_page=True)
+
     page.goto(f"{server.url}/experiments")
     page.wait_for_selector(f"tr[data-id='{experiment_id}'] td:has-text('1 / 20')")
+    awaiting = page.locator(f"tr[data-id='{experiment_id}'] td[data-what='awaiting_confirmation']")
+    assert awaiting.inner_text() == "1"
     page.screenshot(path=str(screenshots / "experiments.png"))
 
 
@@ -295,7 +373,7 @@ def test_bad_measurements_fail_and_review_from_the_trial_page(
         limits={"nominal_pa": 100_000.0, "max_step_pa": 30_000.0, "source_pa": 205_000.0},
     )
     trial, lost = api.suggest(experiment["id"], n=2)
-    api.confirm_trial(trial["id"], trial["schedule_hash"])
+    api.preview_and_confirm(trial)
     login(page, server, "operator")
     page.goto(f"{server.url}/trials/{trial['id']}")
     page.wait_for_selector("#measure-form")
@@ -327,7 +405,7 @@ def test_bad_measurements_fail_and_review_from_the_trial_page(
     assert page.locator("#measure-form").count() == 0
 
     # a worker claims the other trial and vanishes: its lease expires, a person decides
-    api.confirm_trial(lost["id"], lost["schedule_hash"])
+    api.preview_and_confirm(lost)
     [claim] = server.client("worker").claim("vanishing-worker", "hardware")
     assert claim["trial"]["id"] == lost["id"]
     deadline = time.monotonic() + 30

@@ -22,6 +22,7 @@ from app.workers.gate import SafetyRefusal, gate_hardware_trial
 from app.workers.hardware import execute_claim
 
 ROBOT_CEILING_PA = 205_000.0
+ROBOT_MAX_STEP_PA = 30_000.0  # the standin's declared ceilings (HardwareCeilings)
 FORGERIES = (
     "none",
     "beyond_limits",
@@ -32,6 +33,7 @@ FORGERIES = (
     "bad_release",
     "wrong_shape",
     "above_robot_ceiling",
+    "above_robot_step",
     "sim_experiment",
 )
 
@@ -42,7 +44,11 @@ def claims(draw: st.DrawFn, forgery: str) -> tuple[dict, dict]:
     task = draw(st.sampled_from(["tip_speed", "throw", "hammer"]))
     levels = draw(st.integers(2, 7))
     horizon = draw(st.sampled_from([2, 5, 10]))
-    max_step = draw(st.floats(2_000.0, 40_000.0))
+    max_step = draw(
+        st.floats(30_500.0, 45_000.0)
+        if forgery == "above_robot_step"  # limits wider than the driver's declared ceilings
+        else st.floats(2_000.0, ROBOT_MAX_STEP_PA)
+    )
     top = 275_000.0 if forgery == "above_robot_ceiling" else ROBOT_CEILING_PA
     nominal = draw(
         st.lists(st.floats(max_step, top - max_step), min_size=12, max_size=12)
@@ -169,6 +175,8 @@ def check_claim(tmp_path, forgery: str, claim: dict, honest: dict) -> None:
         assert np.all(sent >= np.maximum(honest["lower"], 0.0) - 1e-6)
         assert np.all(sent <= np.minimum(honest["upper"], honest["source"]) + 1e-6)
         assert sent.max() <= ROBOT_CEILING_PA
+        nominal = np.asarray(claim["experiment"]["limits"]["nominal_pa"])
+        assert np.all(np.abs(sent - nominal) <= ROBOT_MAX_STEP_PA + 1e-6)
         assert trial["confirmed_by"] and trial["confirmed_at"]
         assert schedule_hash(sent, entry["release_step"]) == trial["confirmed_hash"]
         np.testing.assert_array_equal(sent, np.asarray(trial["pressure_schedule_pa"]))

@@ -143,7 +143,7 @@ def test_worker_kill9_mid_trial_requeues_sim_and_holds_hardware_for_review(
     hw = hardware_experiment(api)
     [hw_trial] = api.suggest(hw["id"], n=1)
     assert hw_trial["status"] == "awaiting_confirmation"
-    api.confirm_trial(hw_trial["id"], hw_trial["schedule_hash"])
+    api.preview_and_confirm(hw_trial)
     log = tmp_path / "hw.jsonl"
     robot = worker_factory(
         server,
@@ -181,7 +181,7 @@ def test_hardware_worker_runs_only_confirmed_trials_and_reports_tracking(
     with pytest.raises(HandfulAPIError) as err:
         api.confirm_trial(confirmed["id"], wrong)
     assert err.value.status in (409, 422)
-    api.confirm_trial(confirmed["id"], confirmed["schedule_hash"])
+    api.preview_and_confirm(confirmed)
     log = tmp_path / "hw.jsonl"
     robot = worker_factory(
         server,

@@ -42,10 +42,16 @@ T = TypeVar("T")
 
 
 @router.post("", status_code=201)
-def create_experiment(body: ExperimentCreate, db: DbDep, actor: Operator) -> ExperimentRead:
-    """Create an experiment (task, target, policy P/H/release, limits, optimiser, budget)."""
+def create_experiment(
+    body: ExperimentCreate, db: DbDep, settings: SettingsDep, actor: Operator
+) -> ExperimentRead:
+    """Create an experiment (task, target, policy P/H/release, limits, optimiser, budget).
+
+    A hardware experiment's limits must lie within the robot's ceilings (server settings)."""
     with db.write() as session:
-        exp = experiments.create_experiment(session, body, actor=actor)
+        exp = experiments.create_experiment(
+            session, body, actor=actor, ceilings=settings.robot.ceilings()
+        )
         return experiments.read_experiment(session, exp.id)
 
 
@@ -103,6 +109,7 @@ async def suggest(
     body: SuggestIn,
     db: DbDep,
     compute: ComputeDep,
+    settings: SettingsDep,
     actor: Operator,
     request: Request,
 ) -> Response:
@@ -127,7 +134,15 @@ async def suggest(
                 in_thread=compute_jobs.inline(inputs),
             )
 
-        out = trials.suggest(db, experiment_id, body.n, actor=actor, timings=timings, asker=asker)
+        out = trials.suggest(
+            db,
+            experiment_id,
+            body.n,
+            actor=actor,
+            timings=timings,
+            asker=asker,
+            ceilings=settings.robot.ceilings(),
+        )
         return out, timings
 
     t0 = time.perf_counter()
@@ -142,11 +157,18 @@ async def suggest(
 
 @router.post("/{experiment_id}/trials", status_code=201)
 def attach_trial(
-    experiment_id: ExperimentId, body: AttachIn, db: DbDep, actor: Operator
+    experiment_id: ExperimentId, body: AttachIn, db: DbDep, settings: SettingsDep, actor: Operator
 ) -> TrialRead:
     """Add a trial with a θ the operator chose."""
     with db.write() as session:
-        return trials.attach(session, experiment_id, body.theta, note=body.note, actor=actor)
+        return trials.attach(
+            session,
+            experiment_id,
+            body.theta,
+            note=body.note,
+            actor=actor,
+            ceilings=settings.robot.ceilings(),
+        )
 
 
 @router.get(

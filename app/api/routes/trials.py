@@ -9,6 +9,7 @@ from fastapi.responses import FileResponse, Response
 
 from app.api.deps import (
     DbDep,
+    MeasurementId,
     Operator,
     PreviewsDep,
     Reader,
@@ -25,8 +26,10 @@ from app.service.schemas import (
     PreviewJobRead,
     ReasonIn,
     ResolveIn,
+    SupersedeIn,
     TrialDetail,
     TrialRead,
+    WithdrawIn,
 )
 
 router = APIRouter(tags=["trials"])
@@ -59,6 +62,27 @@ def add_measurements(
     return json_response(receipt, status_code=201)
 
 
+@router.post("/measurements/{measurement_id}/withdraw", response_model=MeasurementReceipt)
+def withdraw_measurement(
+    measurement_id: MeasurementId, body: WithdrawIn, db: DbDep, actor: Operator
+) -> MeasurementReceipt:
+    """Withdraw a repeat with a reason: kept (and audited), no longer in the objective."""
+    with db.write() as session:
+        return measurements.withdraw_measurement(session, measurement_id, body.reason, actor=actor)
+
+
+@router.post(
+    "/measurements/{measurement_id}/supersede", status_code=201, response_model=MeasurementReceipt
+)
+def supersede_measurement(
+    measurement_id: MeasurementId, body: SupersedeIn, db: DbDep, actor: Operator
+) -> Response:
+    """Correct a repeat: the old value is kept, withdrawn with the reason; the new one counts."""
+    with db.write() as session:
+        receipt = measurements.supersede_measurement(session, measurement_id, body, actor=actor)
+    return json_response(receipt, status_code=201)
+
+
 @router.post("/trials/{trial_id}/fail")
 def fail(trial_id: TrialId, body: ReasonIn, db: DbDep, actor: Operator) -> TrialRead:
     """Mark a trial failed, with a reason (aborts it if running)."""
@@ -81,10 +105,16 @@ def resolve(trial_id: TrialId, body: ResolveIn, db: DbDep, actor: Operator) -> T
 
 
 @router.post("/trials/{trial_id}/confirm")
-def confirm(trial_id: TrialId, body: ConfirmIn, db: DbDep, actor: Operator) -> TrialRead:
-    """Confirm a hardware trial's exact schedule (by its hash) so a worker may run it."""
+def confirm(
+    trial_id: TrialId, body: ConfirmIn, db: DbDep, settings: SettingsDep, actor: Operator
+) -> TrialRead:
+    """Confirm a hardware trial's exact schedule (by its hash) so a worker may run it.
+
+    Refused unless this operator previewed exactly this schedule (``POST .../preview``)."""
     with db.write() as session:
-        return trials.confirm(session, trial_id, body.schedule_hash, actor=actor)
+        return trials.confirm(
+            session, trial_id, body.schedule_hash, actor=actor, ceilings=settings.robot.ceilings()
+        )
 
 
 @router.post("/trials/{trial_id}/run")
@@ -100,9 +130,14 @@ def run(trial_id: TrialId, db: DbDep, settings: SettingsDep, actor: Operator) ->
 
 
 @router.post("/trials/{trial_id}/preview", status_code=202)
-def preview(trial_id: TrialId, db: DbDep, previews: PreviewsDep, _: Operator) -> PreviewJobRead:
-    """Start a sim rollout of exactly this trial's schedule; poll /api/previews/{job_id}."""
-    return previews.submit(db, trial_id)
+def preview(
+    trial_id: TrialId, db: DbDep, previews: PreviewsDep, settings: SettingsDep, actor: Operator
+) -> PreviewJobRead:
+    """Start a sim rollout of exactly this trial's schedule; poll /api/previews/{job_id}.
+
+    Once done it is recorded as this operator's preview of that schedule (what confirming
+    a hardware trial requires)."""
+    return previews.submit(db, trial_id, actor=actor, ceilings=settings.robot.ceilings())
 
 
 @router.get("/previews/{job_id}")

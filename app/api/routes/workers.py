@@ -25,6 +25,7 @@ def claim(body: ClaimIn, db: DbDep, settings: SettingsDep, actor: WorkerOrOperat
             actor=actor,
             lease_seconds=settings.lease_seconds,
             max_attempts=settings.max_attempts,
+            ceilings=settings.robot.ceilings(),
         )
         return json_response(claims)
 

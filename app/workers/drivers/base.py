@@ -134,8 +134,10 @@ SampleCallback = Callable[[TrackingSample], None]
 class Driver(Protocol):
     """What a robot driver provides. Drivers are built by `load_driver(name, **options)`.
 
-    A driver may also set `max_pressure_pa` (float): the robot's own ceiling, checked by the
-    worker's gate whatever the experiment's limits say.
+    A driver may also set `max_pressure_pa` (float): the robot's own ceiling, and `ceilings`
+    (`app.policy.HardwareCeilings`: source pressure, maximum step, chamber maximum), checked
+    by the worker's gate against the experiment's limits and the schedule whatever the server
+    says: a claim beyond them never reaches `execute`.
     """
 
     name: str

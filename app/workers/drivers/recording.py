@@ -43,6 +43,7 @@ class RecordingDriver:
         inner_options = {k.removeprefix("inner."): v for k, v in options.items()}
         self.inner: Driver = load_driver(inner, **inner_options)
         self.max_pressure_pa: float | None = getattr(self.inner, "max_pressure_pa", None)
+        self.ceilings = getattr(self.inner, "ceilings", None)
         self.log_path = Path(log)
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
         self._lock = threading.Lock()

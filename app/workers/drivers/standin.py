@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from app.policy import SIM_MAX_PRESSURE_PA
+from app.policy import SIM_MAX_PRESSURE_PA, HardwareCeilings
 from app.workers.drivers.base import (
     DriverCommand,
     DriverError,
@@ -141,6 +141,8 @@ class StandinDriver:
 
     name = "standin"
     max_pressure_pa = 205_000.0  # the lab's supply: nothing above it can reach the chambers
+    #: the paper robot's: 205 kPa supply, 30 kPa offsets, chambers rated 40 psi
+    ceilings = HardwareCeilings(source_pa=205_000.0, max_step_pa=30_000.0)
 
     def __init__(
         self,

@@ -1,12 +1,21 @@
 // The write controls for one trial: preview, confirm, run, measurements, fail/abandon/resolve.
 import { api, newIdempotencyKey } from "./api.js";
-import { canWrite, el, fmt } from "./ui.js";
+import { canWrite, el, fmt, fmtDuration, fmtTime } from "./ui.js";
 import { openPreview, openReplay } from "./viz.js";
 
 const PRE_RUN = new Set(["proposed", "awaiting_confirmation", "queued"]);
 const MEASURABLE = new Set(["queued", "running", "completed", "needs_review"]);
 const TERMINAL = new Set(["completed", "failed", "abandoned"]);
 export const UNITS = ["m/s", "m", "N", "score"];
+export const TYPED_SOURCES = ["tape", "tracker"];
+
+// Every "running for …" clock on the page ticks once a second.
+setInterval(() => {
+  for (const node of document.querySelectorAll("[data-started-at]")) {
+    const s = (Date.now() - Date.parse(node.dataset.startedAt)) / 1000;
+    node.textContent = fmtDuration(Math.max(0, s));
+  }
+}, 1000);
 
 function box(title, ...children) {
   return el("div", { class: "action-box" }, el("h3", {}, title), ...children);
@@ -26,18 +35,27 @@ export function meanSem(values) {
 export function parseValue(raw) {
   const text = String(raw).trim();
   if (text === "") return { error: "is empty" };
-  const normalised = text.replace(",", ".");
-  if (!/^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$/.test(normalised)) return { error: `“${text}” is not a number` };
-  const v = Number(normalised);
+  if (/^[+-]?\d*,\d*$/.test(text) && /\d/.test(text)) {
+    return { error: `“${text}” has a comma: type the decimals after a point (${text.replace(",", ".")})` };
+  }
+  if (!/^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$/.test(text)) return { error: `“${text}” is not a number` };
+  const v = Number(text);
   if (!Number.isFinite(v)) return { error: `“${text}” is not a finite number` };
   return { value: v };
 }
 
-function measurementBox(trial, defaultUnit, done) {
+/** The source an operator's repeat defaults to: the experiment's first typed objective source. */
+export function defaultSource(experiment) {
+  const first = (experiment.objective_sources || [])[0];
+  return TYPED_SOURCES.includes(first) ? first : "tape";
+}
+
+function measurementBox(trial, defaultUnit, done, source = "tape") {
   const rows = el("div", { class: "repeats" });
   const summary = el("p", { class: "summary-line", id: "measure-summary" });
   const error = el("p", { class: "error", id: "measure-error", role: "alert" });
   let idempotencyKey = newIdempotencyKey();
+  let saved = null;
 
   function addRow(unit = defaultUnit) {
     const i = rows.children.length + 1;
@@ -45,6 +63,7 @@ function measurementBox(trial, defaultUnit, done) {
       el("span", { class: "muted" }, `#${i}`),
       el("input", { class: "m-value", "aria-label": `repeat ${i} value`, inputmode: "decimal", placeholder: "value" }),
       el("select", { class: "m-unit", "aria-label": `repeat ${i} unit` }, UNITS.map((u) => el("option", { value: u, selected: u === unit }, u))),
+      el("select", { class: "m-source", "aria-label": `repeat ${i} source`, title: "what measured it" }, TYPED_SOURCES.map((x) => el("option", { value: x, selected: x === source }, x))),
       el("input", { class: "m-note", "aria-label": `repeat ${i} note`, placeholder: "note (optional)" }),
       el("button", { type: "button", title: "remove this repeat", onclick: () => { row.remove(); refresh(); } }, "×"));
     rows.append(row);
@@ -61,10 +80,11 @@ function measurementBox(trial, defaultUnit, done) {
       const parsed = parseValue(input.value);
       const unit = row.querySelector(".m-unit").value;
       const note = row.querySelector(".m-note").value;
+      const from = row.querySelector(".m-source").value;
       // While typing, only a non-empty wrong value is marked; on save, empty ones too.
       input.classList.toggle("invalid", !!parsed.error && (strict || input.value.trim() !== ""));
       if (parsed.error) problems.push(`repeat ${i + 1}: ${parsed.error}`);
-      else repeats.push({ value: parsed.value, unit, note });
+      else repeats.push({ value: parsed.value, unit, note, source: from });
     });
     const units = new Set(repeats.map((r) => r.unit));
     if (units.size > 1) problems.push(`all repeats need the same unit (got ${[...units].join(", ")})`);
@@ -89,11 +109,12 @@ function measurementBox(trial, defaultUnit, done) {
     if (problems.length) { error.textContent = `Not saved: ${problems.join("; ")}.`; return; }
     save.disabled = true;
     try {
-      await api("POST", `/api/trials/${trial.id}/measurements`, { body: { repeats }, headers: { "Idempotency-Key": idempotencyKey } });
+      saved = await api("POST", `/api/trials/${trial.id}/measurements`, { body: { repeats }, headers: { "Idempotency-Key": idempotencyKey } });
       idempotencyKey = newIdempotencyKey();
       rows.replaceChildren();
       addRow();
-      done(`Saved ${repeats.length} repeat${repeats.length > 1 ? "s" : ""} for trial ${trial.index ?? trial.id}.`);
+      const receipt = saved;
+      done(`Saved ${repeats.length} repeat${repeats.length > 1 ? "s" : ""} for trial ${trial.index}: objective now ${fmt(receipt?.objective)}${receipt?.objective_sem !== null && receipt?.objective_sem !== undefined ? ` ± ${fmt(receipt.objective_sem)}` : ""} over ${receipt?.n_measurements ?? "?"} counted repeat(s).`);
     } catch (err) {
       // A refused post stored nothing, so a new key is right for the corrected values.
       if (err.status >= 400 && err.status < 500) idempotencyKey = newIdempotencyKey();
@@ -106,7 +127,7 @@ function measurementBox(trial, defaultUnit, done) {
   el("div", { class: "row gap" }, el("button", { type: "button", id: "measure-add", onclick: () => addRow(rows.lastElementChild?.querySelector(".m-unit").value || defaultUnit) }, "+ repeat"), save),
   summary, error);
   addRow();
-  return box(`Enter measurement${trial.n_measurements ? ` (has ${trial.n_measurements})` : ""}`, form);
+  return box(`Enter measurement for trial ${trial.index}${trial.n_measurements ? ` (has ${trial.n_measurements})` : ""}`, form);
 }
 
 function reasonBox(trial, hardware, done) {
@@ -118,7 +139,7 @@ function reasonBox(trial, hardware, done) {
     reason.classList.remove("invalid");
     try {
       await api("POST", `/api/trials/${trial.id}/${path}`, { body: { ...body, reason: reason.value.trim() } });
-      done(`Trial ${trial.index ?? trial.id}: ${what} done.`);
+      done(`Trial ${trial.index}: ${what} done.`);
     } catch (err) {
       error.textContent = `Refused: ${err.message}`;
     }
@@ -136,6 +157,25 @@ function reasonBox(trial, hardware, done) {
     el("button", { class: "danger", id: "fail-button", onclick: () => act("fail", {}, "mark failed") }, "Mark failed"),
     el("button", { class: "danger", id: "abandon-button", onclick: () => act("abandon", {}, "abandon") }, "Abandon"));
   return box(trial.status === "needs_review" ? "Needs review: decide" : "Fail or abandon", el("label", {}, "Reason", reason), el("div", { class: "row gap" }, ...buttons), error);
+}
+
+/** A running hardware trial: how long it has run, and a Stop that aborts it through the worker. */
+function stopBox(trial, done) {
+  const error = el("p", { class: "error", role: "alert", id: "stop-error" });
+  const reason = el("input", { id: "stop-reason", value: "stopped by the operator", "aria-label": "why stop" });
+  const button = el("button", { class: "danger", id: "stop-button", onclick: async () => {
+    error.textContent = "";
+    if (!reason.value.trim()) { error.textContent = "Give a reason to stop."; return; }
+    button.disabled = true;
+    try {
+      await api("POST", `/api/trials/${trial.id}/fail`, { body: { reason: reason.value.trim() } });
+      done(`Trial ${trial.index} stopped: the worker aborts it and the robot vents to nominal.`);
+    } catch (err) { error.textContent = `Not stopped: ${err.message}`; button.disabled = false; }
+  } }, "Stop");
+  const clock = el("strong", { id: "elapsed", dataset: { startedAt: trial.started_at || trial.updated_at } }, "…");
+  return box(`Running on the robot: trial ${trial.index}`,
+    el("p", {}, "Running for ", clock, " (a schedule lasts about 5 s)."),
+    el("label", {}, "Reason", reason), el("div", {}, button), error);
 }
 
 /**
@@ -180,14 +220,18 @@ function buildTrialActions(container, trial, ctx) {
       button.disabled = true;
       try {
         await api("POST", `/api/trials/${trial.id}/confirm`, { body: { schedule_hash: trial.schedule_hash } });
-        done(`Trial ${trial.index ?? trial.id} confirmed and queued for the robot.`);
+        done(`Trial ${trial.index} confirmed and queued for the robot.`);
       } catch (err) {
         error.textContent = `Not confirmed: ${err.message}`;
         button.disabled = false;
       }
     } }, "Confirm safety & queue");
-    container.append(box("Safety gate",
+    const mine = (trial.previews || []).filter((p) => p.schedule_hash === trial.schedule_hash);
+    container.append(box(`Safety gate: trial ${trial.index}`,
       el("p", { class: "small muted" }, `You confirm exactly this schedule (hash ${String(trial.schedule_hash || "?").slice(0, 12)}…); any change needs a new confirmation.`),
+      el("p", { class: "small", id: "preview-state" }, mine.length
+        ? `Previewed by ${mine.map((p) => `${p.previewed_by} (${fmtTime(p.previewed_at)})`).join(", ")}.`
+        : "The server accepts a confirmation only after your own 3D preview of this exact schedule has run: press “Preview (3D)” first."),
       el("label", { class: "inline" }, check, "I have checked this schedule and its 3D preview; the robot's area is clear."),
       el("div", {}, button), error));
   }
@@ -199,13 +243,15 @@ function buildTrialActions(container, trial, ctx) {
         error.textContent = "";
         try {
           await api("POST", `/api/trials/${trial.id}/run`);
-          done(`Trial ${trial.index ?? trial.id} ran in the simulator.`);
+          done(`Trial ${trial.index} ran in the simulator.`);
         } catch (err) { error.textContent = `Not run: ${err.message}`; ev.target.disabled = false; }
       } }, "Run in the simulator now"),
       el("span", { class: "muted small" }, " (or let a sim worker claim it)"), error));
   }
-  if (MEASURABLE.has(status)) {
-    container.append(measurementBox(trial, experiment.objective_unit || "score", done));
+  if (hardware && status === "running") container.append(stopBox(trial, done));
+  // Sim trials are scored by the simulator: no operator form (the API still takes a value).
+  if (hardware && MEASURABLE.has(status)) {
+    container.append(measurementBox(trial, experiment.objective_unit || "score", done, defaultSource(experiment)));
   }
-  if (!TERMINAL.has(status)) container.append(reasonBox(trial, hardware, done));
+  if (!TERMINAL.has(status) && !(hardware && status === "running")) container.append(reasonBox(trial, hardware, done));
 }

@@ -2,6 +2,7 @@ import { api } from "./api.js";
 import { SIM_MAX_PRESSURE_PA } from "/api-schema.js";
 import { renderTrialActions } from "./actions.js";
 import { bestSoFar, relevance, scheduleHeatmap, slices } from "./plots.js";
+import { closeUnlessFor } from "./viz.js";
 import { $, applyRole, badge, canWrite, download, el, fmt, fmtDuration, fmtPm, fmtTime, requireLogin, showError } from "./ui.js";
 
 const experimentId = window.HANDFUL.experimentId;
@@ -10,6 +11,7 @@ let experiment = null;
 let trials = [];
 let version = null;
 let nextKey = null;
+let selectedId = null; // a trial the operator picked (e.g. from the awaiting-measurement list)
 
 /** How the experiment applies each schedule row (a ramped schedule is a different motion). */
 function holdText(e) {
@@ -40,7 +42,14 @@ function incumbent() {
   return done.length ? done.reduce((a, b) => (b.objective > a.objective ? b : a)) : null;
 }
 
+/** Trials that ran and await a measurement from the objective's sources. */
+function awaitingMeasurement() {
+  return trials.filter((t) => t.status === "completed" && (t.objective === null || t.objective === undefined) && experiment.target === "hardware");
+}
+
 function pickNext() {
+  const picked = selectedId !== null && trials.find((x) => x.id === selectedId);
+  if (picked) return picked;
   for (const status of ACTIVE_ORDER) {
     const t = trials.find((x) => x.status === status);
     if (t) return t;
@@ -57,20 +66,33 @@ function renderHeader() {
   $("#exp-status").className = `badge ${e.status}`;
   const done = trials.filter((t) => t.status === "completed").length;
   const best = incumbent();
+  const used = e.n_budget_used ?? trials.filter((t) => t.status !== "abandoned").length;
   $("#exp-summary").textContent = [
     `${e.task} on ${e.target}`,
     `P = ${e.levels}, H = ${e.horizon}${e.with_release ? " + release step" : ""}`,
     holdText(e),
     `${e.method}${e.acquisition ? ` (${e.acquisition}${e.kappa !== null && e.kappa !== undefined ? `, κ = ${e.kappa}` : ""})` : ""}, ${e.n_initial} initial, seed ${e.seed}`,
-    `objective in ${e.objective_unit}`,
+    `objective in ${e.objective_unit} from ${(e.objective_sources || []).join(" + ")}`,
     limitsText(e),
     `${done} / ${e.budget ?? "∞"} trials done`,
+    e.budget_reached ? `budget of ${e.budget} trials reached (${used} used): raise it to go on` : "",
     `best so far ${best ? fmtPm(best.objective, best.objective_sem) : "—"}`,
     `by ${e.created_by || "?"}, ${fmtTime(e.created_at)}`,
-  ].join(" · ");
+  ].filter(Boolean).join(" · ");
+  $("#suggest-button").disabled = !!e.budget_reached;
+  $("#suggest-button").title = e.budget_reached ? `The budget of ${e.budget} trials is reached; raise it below to suggest more.` : "";
+  renderAwaiting();
   if (document.activeElement !== $("#exp-status-select")) $("#exp-status-select").value = e.status;
   if (document.activeElement !== $("#exp-budget-input")) $("#exp-budget-input").value = e.budget ?? "";
   if (document.activeElement !== $("#exp-notes")) $("#exp-notes").value = e.notes ?? "";
+}
+
+function renderAwaiting() {
+  const waiting = awaitingMeasurement();
+  $("#awaiting-card").hidden = !waiting.length;
+  $("#awaiting-list").replaceChildren(...waiting.map((t) => el("button", {
+    class: selectedId === t.id ? "primary" : "", dataset: { trialId: t.id }, onclick: () => { selectedId = t.id; nextKey = null; renderNext(); renderAwaiting(); $("#next-card").scrollIntoView({ block: "start" }); },
+  }, `Measure trial ${t.index}`)));
 }
 
 function renderTable() {
@@ -92,6 +114,7 @@ function renderTable() {
 
 function renderNext() {
   const t = pickNext();
+  closeUnlessFor(t ? t.id : null);
   const key = t ? `${t.id}:${t.status}:${t.n_measurements}:${t.updated_at}:${t.schedule_hash}` : "none";
   if (key === nextKey) return;
   nextKey = key;
@@ -111,7 +134,7 @@ function renderNext() {
   scheduleHeatmap($("#heatmap"), t.pressure_schedule_pa, { title: `pressure schedule (kPa): 12 chambers × H steps, ${holdText(experiment)}`, releaseStep: t.release_step, ...boundsPa(experiment) });
   const best = incumbent();
   renderTrialActions($("#trial-actions"), t, {
-    experiment, incumbentId: best && best.id !== t.id ? best.id : null, onChange: (msg) => { say(msg); refresh(true); },
+    experiment, incumbentId: best && best.id !== t.id ? best.id : null, onChange: (msg) => { say(msg); if (selectedId === t.id) selectedId = null; refresh(true); },
   });
 }
 
@@ -125,7 +148,8 @@ async function renderModel() {
       return;
     }
     $("#model-plots").hidden = false;
-    empty.textContent = model.message || `GP fitted on ${model.n_observations} observations; best trial ${model.incumbent_trial_id ?? "?"} (${fmt(model.incumbent_objective)}).`;
+    empty.textContent = [model.message || `GP fitted on ${model.n_observations} observations; best trial ${model.incumbent_trial_index ?? "?"} (${fmt(model.incumbent_objective)}).`,
+      model.n_refused ? `${model.n_refused} abandoned trial${model.n_refused > 1 ? "s" : ""} count as objective ${fmt(model.refused_penalty)} (below the worst), so the model avoids that region; their schedules are never suggested again.` : ""].filter(Boolean).join(" ");
     relevance($("#relevance-plot"), model.lengthscales);
     slices($("#slices-plot"), model.slices || [], model.incumbent_theta, model.lengthscales);
   } catch (err) {
@@ -140,7 +164,7 @@ async function renderAudit() {
     const rows = await api("GET", `/api/experiments/${experimentId}/audit?limit=300`);
     $("#exp-audit-table tbody").replaceChildren(...rows.map((a) => el("tr", {},
       el("td", {}, fmtTime(a.at)), el("td", {}, a.actor), el("td", {}, a.action),
-      el("td", {}, a.trial_id ? el("a", { href: `/trials/${a.trial_id}` }, a.trial_id) : "—"),
+      el("td", {}, a.trial_id ? el("a", { href: `/trials/${a.trial_id}` }, `trial ${trials.find((t) => t.id === a.trial_id)?.index ?? "?"}`) : "—"),
       el("td", {}, a.before || a.after ? `${a.before ?? "—"} → ${a.after ?? "—"}` : ""),
       el("td", {}, a.detail ? JSON.stringify(a.detail) : ""))));
   } catch (err) {
@@ -199,6 +223,7 @@ function wireActions() {
       if (!Number.isInteger(n) || n < 1 || n > 100) { showError("#exp-error", "n must be a whole number from 1 to 100."); return; }
       const made = await api("POST", `/api/experiments/${experimentId}/suggest`, { body: { n } });
       say(made.length ? `Suggested trial ${made.map((t) => t.index).join(", ")}.` : "No new trial suggested.");
+      selectedId = null;
       await refresh(true);
     } catch (err) { showError("#exp-error", err); } finally { ev.target.disabled = false; }
   };
@@ -238,9 +263,10 @@ function wireActions() {
     const body = { status: $("#exp-status-select").value };
     const b = $("#exp-budget-input").value.trim();
     if (b) {
-      const n = Number(b);
-      if (!Number.isInteger(n) || n < 1) { showError("#exp-error", "Budget must be a whole number ≥ 1."); return; }
-      body.budget = n;
+      const used = experiment.n_budget_used ?? 0;
+      if (!/^\d+$/.test(b) || Number(b) < 1) { showError("#exp-error", `Not saved: budget “${b}” is not a whole number of trials (1 or more).`); return; }
+      if (Number(b) < used) { showError("#exp-error", `Not saved: a budget of ${b} trials is below the ${used} trials this experiment already has.`); return; }
+      body.budget = Number(b);
     }
     try {
       await api("PATCH", `/api/experiments/${experimentId}`, { body });

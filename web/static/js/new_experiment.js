@@ -40,7 +40,10 @@ form.addEventListener("input", updateDependent);
 function numberField(id, apiName, errors, { integer = false, scale = 1 } = {}) {
   const raw = $(id).value.trim();
   const v = Number(raw);
-  if (raw === "" || !Number.isFinite(v)) { errors[apiName] = `“${raw}” is not a number`; return undefined; }
+  // a number input holds "" for text it cannot read (e.g. "1e"): say so, not “”
+  if (raw === "" && $(id).validity && $(id).validity.badInput) { errors[apiName] = "what is typed here is not a number"; return undefined; }
+  if (raw === "") { errors[apiName] = "is empty: type a number"; return undefined; }
+  if (!Number.isFinite(v)) { errors[apiName] = `“${raw}” is not a number`; return undefined; }
   if (integer && !Number.isInteger(v)) { errors[apiName] = `${raw} is not a whole number`; return undefined; }
   return v * scale;
 }
@@ -67,7 +70,15 @@ function collect() {
     seed: numberField("#f-seed", "seed", errors, { integer: true }),
     notes: $("#f-notes").value,
   };
+  // imported observations always count: they are what the operator chose to import
+  if ($("#f-objective_sources").value) body.objective_sources = [$("#f-objective_sources").value, "imported"];
   if (!body.name) errors.name = "give the experiment a name";
+  // the API's rules, in the form's own words and units
+  if (body.method.startsWith("bo-") && Number.isInteger(body.n_initial) && Number.isInteger(body.budget) && body.n_initial > body.budget) {
+    errors.n_initial = `${body.n_initial} initial random trials do not fit in a budget of ${body.budget} trials`;
+  }
+  if (Number.isInteger(body.n_initial) && body.n_initial < 2) errors.n_initial = "at least 2 initial trials";
+  if (Number.isInteger(body.budget) && body.budget < 1) errors.budget = "at least 1 trial";
   if (target === "hardware") {
     const parts = $("#f-nominal").value.split(/[,\s]+/).filter(Boolean);
     const nominal = parts.map(Number);
@@ -81,6 +92,14 @@ function collect() {
       max_step_pa: numberField("#f-max_step", "max_step_pa", errors, { scale: 1000 }),
       source_pa: numberField("#f-source", "source_pa", errors, { scale: 1000 }),
     };
+    const step = body.limits.max_step_pa / 1000;
+    const source = body.limits.source_pa / 1000;
+    if (Number.isFinite(step) && step <= 0) errors.max_step_pa = "must be more than 0 kPa";
+    if (Number.isFinite(source) && source <= 0) errors.source_pa = "must be more than 0 kPa";
+    if (!errors.nominal_pa && Number.isFinite(step) && Number.isFinite(source) && step > 0) {
+      const bad = nominal.find((p) => p - step < 0 || p + step > source);
+      if (bad !== undefined) errors.nominal_pa = `${bad} kPa ± ${step} kPa spans ${bad - step} to ${bad + step} kPa, outside 0 to the ${source} kPa source`;
+    }
   }
   return { body, errors };
 }
@@ -101,6 +120,10 @@ form.addEventListener("submit", async (ev) => {
     const exp = await api("POST", "/api/experiments", { body });
     location.href = `/experiments/${exp.id}`;
   } catch (err) {
+    // the robot's ceilings come back as "limits: …": put each next to its own kPa field
+    const placed = placeServerMessage(err.fields.limits ? `limits: ${err.fields.limits}` : err.message);
+    if (err.fields.limits && Object.keys(placed).length) delete err.fields.limits;
+    if (!Object.keys(err.fields).length || Object.keys(placed).length) err.fields = { ...err.fields, ...placed };
     const unplaced = showFieldErrors(form, err.fields);
     $("#form-error").textContent = Object.keys(err.fields).length
       ? ["The server refused some fields (marked in red).", ...unplaced].join("\n")
@@ -109,6 +132,18 @@ form.addEventListener("submit", async (ev) => {
     button.disabled = false;
   }
 });
+
+/** A server refusal without a field (e.g. the robot's ceilings, in kPa) next to its field. */
+function placeServerMessage(message) {
+  const m = String(message || "");
+  const rules = [
+    [/source pressure/, "source_pa"], [/maximum step|max step/, "max_step_pa"],
+    [/^limits:.*(nominal|chamber)/, "nominal_pa"], [/^n_initial/, "n_initial"], [/budget/, "budget"],
+    [/^optimizer settings/, "method"], [/^sim_preset/, "sim_preset"],
+  ];
+  for (const [re, field] of rules) if (re.test(m)) return { [field]: m.replace(/^(limits|n_initial|budget): /, "") };
+  return {};
+}
 
 requireLogin().then((me) => {
   if (me.role !== "operator") {

@@ -1,7 +1,7 @@
 import { api } from "./api.js";
-import { renderTrialActions } from "./actions.js";
+import { meanSem, parseValue, renderTrialActions } from "./actions.js";
 import { line, scheduleHeatmap } from "./plots.js";
-import { $, applyRole, download, el, fmt, fmtDuration, fmtPm, fmtTime, requireLogin, showError } from "./ui.js";
+import { $, applyRole, canWrite, download, el, fmt, fmtDuration, fmtPm, fmtTime, requireLogin, showError } from "./ui.js";
 import { openReplay } from "./viz.js";
 
 const trialId = window.HANDFUL.trialId;
@@ -46,13 +46,55 @@ function renderSchedules(t) {
   }
 }
 
-function renderMeasurements(t) {
+function renderMeasurements(t, e) {
   const ms = t.measurements || [];
-  const rows = ms.map((m, i) => el("tr", {},
+  const counted = new Set(e.objective_sources || []);
+  // each source's repeats apart: the objective is made of the experiment's sources only
+  const bySource = {};
+  for (const m of ms) if (!m.withdrawn_at) (bySource[m.source] ||= []).push(m.value);
+  $("#sources-summary").replaceChildren(...Object.entries(bySource).map(([src, vals]) => {
+    const { mean, sem } = meanSem(vals);
+    return el("li", { dataset: { source: src } }, `${src}: ${fmt(mean)}${sem !== null ? ` ± ${fmt(sem)}` : ""} over ${vals.length} repeat${vals.length > 1 ? "s" : ""}`,
+      counted.has(src) ? el("strong", {}, " (makes the objective)") : el("span", { class: "muted" }, " (not in the objective)"));
+  }));
+  const rows = ms.map((m, i) => el("tr", { class: m.withdrawn_at ? "withdrawn" : "", dataset: { measurementId: m.id } },
     el("td", {}, i + 1), el("td", { class: "m-value" }, fmt(m.value, 4)), el("td", {}, m.unit),
-    el("td", {}, m.source || "—"), el("td", {}, m.created_by || "—"), el("td", {}, fmtTime(m.created_at)), el("td", {}, m.note || "")));
+    el("td", {}, m.source || "—"), el("td", {}, m.created_by || "—"), el("td", {}, fmtTime(m.created_at)), el("td", {}, m.note || ""),
+    el("td", { class: "m-why small" }, m.withdrawn_at ? `withdrawn by ${m.withdrawn_by}, ${fmtTime(m.withdrawn_at)}: ${m.withdrawn_reason}` : (m.supersedes_id ? "a correction" : "")),
+    el("td", { class: "m-actions write-only" }, m.withdrawn_at || !canWrite() ? "" : correctControls(t, m))));
   $("#measurements-table tbody").replaceChildren(...rows);
-  if (!rows.length) $("#measurements-table tbody").append(el("tr", {}, el("td", { colspan: 7, class: "muted" }, "No measurement yet.")));
+  if (!rows.length) $("#measurements-table tbody").append(el("tr", {}, el("td", { colspan: 9, class: "muted" }, "No measurement yet.")));
+}
+
+/** Correct (supersede) or withdraw one repeat, with a reason; nothing is deleted. */
+function correctControls(t, m) {
+  const holder = el("div", {});
+  const open = (mode) => {
+    const value = el("input", { class: "c-value short", "aria-label": "corrected value", inputmode: "decimal", value: mode === "correct" ? String(m.value) : "" });
+    const reason = el("input", { class: "c-reason", "aria-label": "reason", placeholder: "reason (required)" });
+    const error = el("p", { class: "error c-error", role: "alert" });
+    const go = el("button", { class: "primary c-save", onclick: async () => {
+      error.textContent = "";
+      if (!reason.value.trim()) { error.textContent = "Give a reason."; return; }
+      try {
+        if (mode === "correct") {
+          const parsed = parseValue(value.value);
+          if (parsed.error) { error.textContent = `Not saved: the value ${parsed.error}.`; return; }
+          await api("POST", `/api/measurements/${m.id}/supersede`, { body: { value: parsed.value, unit: m.unit, reason: reason.value.trim() } });
+        } else {
+          await api("POST", `/api/measurements/${m.id}/withdraw`, { body: { reason: reason.value.trim() } });
+        }
+        $("#trial-summary").textContent = mode === "correct" ? `Repeat corrected; trial ${t.index}'s objective recomputed.` : `Repeat withdrawn; trial ${t.index}'s objective recomputed.`;
+        load(true);
+      } catch (err) { error.textContent = `Not saved: ${err.message}`; }
+    } }, mode === "correct" ? "Save correction" : "Withdraw");
+    holder.replaceChildren(...(mode === "correct" ? [value] : []), reason, go, el("button", { onclick: () => holder.replaceChildren(...buttons()) }, "Cancel"), error);
+  };
+  const buttons = () => [
+    el("button", { class: "c-correct", onclick: () => open("correct") }, "Correct…"),
+    el("button", { class: "c-withdraw", onclick: () => open("withdraw") }, "Withdraw…")];
+  holder.replaceChildren(...buttons());
+  return holder;
 }
 
 function renderAudit(t) {
@@ -65,7 +107,7 @@ function renderAudit(t) {
   if (!rows.length) $("#audit-table tbody").append(el("tr", {}, el("td", { colspan: 5, class: "muted" }, "No audit entries returned.")));
 }
 
-async function renderTrajectory(t) {
+async function renderTrajectory(t, e) {
   const note = $("#trajectory-note");
   if (!t.has_trajectory) {
     note.textContent = "No recorded trajectory for this trial (yet). The 3D replay simulates its schedule.";
@@ -79,8 +121,10 @@ async function renderTrajectory(t) {
     $("#trajectory-plots").hidden = false;
     if (tr.tip_speed_m_s) line($("#speed-plot"), time, tr.tip_speed_m_s, { title: "tip speed", ytitle: "m/s" });
     if (tr.tip_pos_m) line($("#height-plot"), time, tr.tip_pos_m.map((p) => p[2]), { title: "tip height", ytitle: "m" });
-    if (tr.plate_force_n) line($("#force-plot"), time, tr.plate_force_n, { title: "plate force", ytitle: "N" });
-    else $("#force-plot").replaceChildren(el("p", { class: "muted" }, "No plate force in this recording (only the hammer task has a force plate; a tracker records the tip only)."));
+    // only the hammer task has a force plate: a throw's recording holds zeros there
+    $("#force-plot").hidden = !(tr.plate_force_n && e.task === "hammer");
+    if (!$("#force-plot").hidden) line($("#force-plot"), time, tr.plate_force_n, { title: "plate force", ytitle: "N" });
+    else $("#force-plot").replaceChildren();
   } catch (err) {
     note.textContent = `Trajectory not shown: ${err.message}`;
   }
@@ -89,19 +133,19 @@ async function renderTrajectory(t) {
 async function load(force = false) {
   try {
     const t = await api("GET", `/api/trials/${trialId}`);
-    const key = `${t.status}:${t.n_measurements}:${t.updated_at}:${(t.measurements || []).length}`;
+    const key = `${t.status}:${t.n_measurements}:${t.updated_at}:${(t.measurements || []).length}:${(t.measurements || []).filter((m) => m.withdrawn_at).length}`;
     if (!force && key === lastKey) return;
     lastKey = key;
     const e = await api("GET", `/api/experiments/${t.experiment_id}`);
     renderFacts(t, e);
     renderSchedules(t);
-    renderMeasurements(t);
+    renderMeasurements(t, e);
     renderAudit(t);
-    renderTrajectory(t);
+    renderTrajectory(t, e);
     renderTrialActions($("#trial-actions"), t, { experiment: e, incumbentId: null, onChange: (msg) => { showError("#trial-error", null); $("#trial-summary").textContent = msg; load(true); } });
     $("#replay-button").onclick = () => openReplay(t, null);
     $("#npz-button").hidden = !t.has_trajectory;
-    $("#npz-button").onclick = () => download(`/api/trials/${t.id}/trajectory?format=npz`, `trial-${t.id}-trajectory.npz`).catch((err) => showError("#trial-error", err));
+    $("#npz-button").onclick = () => download(`/api/trials/${t.id}/trajectory?format=npz`, `trial-${t.index}-trajectory.npz`).catch((err) => showError("#trial-error", err));
     applyRole();
     showError("#trial-error", null);
   } catch (err) {

@@ -3,11 +3,25 @@ import { api } from "./api.js";
 import { $, el, fmt } from "./ui.js";
 
 let generation = 0; // a newer request supersedes an older one still polling
+let shownTrialId = null; // the trial the 3D card shows (null: closed)
+
+/** Close the 3D card unless it shows `trialId`: never a previous trial's preview next to
+ * another trial's safety gate. */
+export function closeUnlessFor(trialId) {
+  if (shownTrialId !== null && shownTrialId !== trialId) closeCard();
+}
+
+function closeCard() {
+  generation++;
+  shownTrialId = null;
+  $("#viz-card").hidden = true;
+  $("#viz-frame-holder").replaceChildren();
+}
 
 function card() {
   const c = $("#viz-card");
   c.hidden = false;
-  $("#viz-close").onclick = () => { generation++; c.hidden = true; $("#viz-frame-holder").replaceChildren(); };
+  $("#viz-close").onclick = closeCard;
   return c;
 }
 
@@ -20,10 +34,10 @@ function progress(fraction, label) {
   }
 }
 
-function viserUrl(port, key) {
-  const host = location.hostname.includes(":") ? `[${location.hostname}]` : location.hostname;
-  const ws = `${location.protocol === "https:" ? "wss" : "ws"}://${host}:${port}/view/${key}`;
-  return `${location.protocol}//${host}:${port}/?websocket=${ws}&hideViserLogo`;
+/** The view through the main port (proxied to viser): one forwarded port is enough. */
+function viserUrl(view) {
+  const ws = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}${view.proxy_websocket_path}`;
+  return `${location.origin}${view.proxy_url}?websocket=${encodeURIComponent(ws)}&hideViserLogo`;
 }
 
 async function embed(body, legend, gen) {
@@ -33,7 +47,7 @@ async function embed(body, legend, gen) {
   progress(null);
   $("#viz-legend").textContent = [legend || `Showing ${view.label}.`, view.overlay_label ? `Blue, see-through: the best trial so far, ${view.overlay_label}.` : ""].filter(Boolean).join(" ");
   $("#viz-frame-holder").replaceChildren(el("iframe", {
-    id: "viz-frame", src: viserUrl(view.port, view.key), title: `3D view: ${view.label}`, allow: "fullscreen",
+    id: "viz-frame", src: viserUrl(view), title: `3D view: ${view.label}`, allow: "fullscreen",
   }));
 }
 
@@ -43,12 +57,13 @@ const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
 export async function openPreview(trial, incumbentId) {
   const gen = ++generation;
   card();
-  $("#viz-title").textContent = `preview of trial ${trial.index ?? trial.id}`;
+  shownTrialId = trial.id;
+  $("#viz-title").textContent = `preview of trial ${trial.index}`;
   $("#viz-error").textContent = "";
   $("#viz-legend").textContent = "";
   $("#viz-frame-holder").replaceChildren();
   progress(0.02, "asking the server for a preview…");
-  card().scrollIntoView({ block: "start" });
+  ($("#next-card") || card()).scrollIntoView({ block: "start" });
   try {
     const { job_id: jobId } = await api("POST", `/api/trials/${trial.id}/preview`);
     let job;
@@ -63,10 +78,12 @@ export async function openPreview(trial, incumbentId) {
     }
     const hits = job.bend_limit_hits || [];
     const words = [
-      `Sim preview of trial ${trial.index ?? trial.id}: predicted max tip speed ${fmt(job.predicted_tip_speed)} m/s.`,
+      `Sim preview of trial ${trial.index}: predicted max tip speed ${fmt(job.predicted_tip_speed)} m/s.`,
       hits.length ? `WARNING: joint${hits.length > 1 ? "s" : ""} ${hits.join(", ")} would reach the bend limit.` : "No joint reaches its bend limit.",
     ];
     $("#next-preview-summary")?.replaceChildren(words.join(" "));
+    const state = document.getElementById("preview-state");
+    if (state) state.textContent = `Previewed by you just now (schedule ${String(job.schedule_hash).slice(0, 12)}…): you may confirm it.`;
     await embed({ trial_id: trial.id, preview_job_id: jobId, overlay_trial_id: incumbentId ?? null }, words.join(" "), gen);
   } catch (err) {
     if (gen !== generation) return;
@@ -79,7 +96,8 @@ export async function openPreview(trial, incumbentId) {
 export async function openReplay(trial, overlayId) {
   const gen = ++generation;
   card();
-  $("#viz-title").textContent = `trial ${trial.index ?? trial.id}`;
+  shownTrialId = trial.id;
+  $("#viz-title").textContent = `trial ${trial.index}`;
   $("#viz-error").textContent = "";
   $("#viz-frame-holder").replaceChildren();
   progress(0.3, "preparing the replay…");
