@@ -9,7 +9,7 @@ from datetime import datetime, timedelta
 import pytest
 
 from app.db.base import utcnow
-from app.db.models import Trial
+from app.db.models import Preview, Trial
 from app.policy import schedule_hash
 from app.service import leases, trials
 from app.service import lifecycle as lc
@@ -62,7 +62,6 @@ def test_a_sim_trial_is_requeued_then_failed(db, make_experiment, make_trial, tm
             actor=WORKER,
             artifacts_dir=tmp_path,
             max_attempts=ATTEMPTS,
-            max_bytes=1 << 20,
         )
     t1 = t0 + timedelta(seconds=2 * LEASE_S)
     [c2] = claim(db, "sim", t1)
@@ -76,14 +75,21 @@ def test_a_sim_trial_is_requeued_then_failed(db, make_experiment, make_trial, tm
 def test_a_hardware_trial_goes_to_needs_review_and_stays(db, make_experiment, make_trial):
     exp_id = make_experiment(target="hardware")
     tid = make_trial(exp_id, status=lc.AWAITING_CONFIRMATION)
-    with db.write() as s:  # the operator confirms what the trial will run
+    with db.write() as s:  # the operator previews, then confirms what the trial will run
         t = s.get(Trial, tid)
-        trials.confirm(
-            s,
-            tid,
-            schedule_hash(t.pressure_schedule_pa, t.release_step),
-            actor=Actor("olivia", "operator"),
+        digest = schedule_hash(t.pressure_schedule_pa, t.release_step)
+        s.add(
+            Preview(
+                trial_id=tid,
+                schedule_hash=digest,
+                hold=t.experiment.command_hold,
+                sim_preset=t.experiment.sim_preset,
+                job_id="p1",
+                previewed_by="olivia",
+            )
         )
+        s.flush()
+        trials.confirm(s, tid, digest, actor=Actor("olivia", "operator"))
     t0 = utcnow()
     [c] = claim(db, "hardware", t0)
     assert sweep(db, t0 + timedelta(seconds=LEASE_S + 1)) == 1
