@@ -12,7 +12,9 @@ from app.workers.drivers import load_driver
 from app.workers.hardware import HardwareWorker
 
 
-def test_stopping_a_running_hardware_trial_aborts_the_driver(api, worker_api):
+def test_stopping_a_running_hardware_trial_aborts_the_driver(op, worker):
+    # its own server: a claim on the shared one could take another test's queued trial
+    api, worker_api = op, worker
     exp = api.create_experiment(
         name="stop",
         task="tip_speed",
@@ -32,10 +34,10 @@ def test_stopping_a_running_hardware_trial_aborts_the_driver(api, worker_api):
         fault_probability="0",
         tracker_loss_probability="0",
     )
-    worker = HardwareWorker(worker_api, driver, worker_id="hw-stop")
+    hw = HardwareWorker(worker_api, driver, worker_id="hw-stop")
     [claim] = worker_api.claim("hw-stop", "hardware")
     outcome: list = []
-    runner = threading.Thread(target=lambda: outcome.append(worker.run_one(claim)))
+    runner = threading.Thread(target=lambda: outcome.append(hw.run_one(claim)))
     t0 = time.monotonic()
     runner.start()
     time.sleep(1.0)
