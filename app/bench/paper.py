@@ -333,7 +333,107 @@ def paper_markdown(
                 f"| {c.task} | {c.method} | {c.levels or '–'} | {c.trials} | {len(cost)} "
                 f"| {float(np.mean(cost)):.1f} |"
             )
+    lines += ["", *projection_markdown(rows, available=available)]
     return "\n".join(lines) + "\n"
+
+
+def _trial_costs(rows: Sequence[dict[str, Any]]) -> dict[tuple[str, str, int], np.ndarray]:
+    """(task, method, P) → mean wall seconds of trial i (1, 2, ...) over the seeds that ran it."""
+    acc: dict[tuple[str, str, int], dict[int, list[float]]] = {}
+    for r in rows:
+        acc.setdefault((r["task"], r["method"], r["levels"]), {}).setdefault(r["trial"], []).append(
+            r["wall_s"]
+        )
+    return {
+        k: np.array([np.mean(v[i]) for i in sorted(v)], dtype=float) for k, v in acc.items() if v
+    }
+
+
+def projected_run_s(per_trial_s: np.ndarray, budget: int, *, grows: bool) -> float:
+    """Seconds for one run of ``budget`` trials from a measured per-trial cost curve (trial
+    1..n). Measured trials are summed as they are; beyond n, a method whose suggestion cost grows
+    with the data (``grows``: BO) follows a quadratic in the trial index fitted to the measured
+    curve (never below its last measured level), any other method its mean trial cost."""
+    n = len(per_trial_s)
+    done = float(per_trial_s[: min(n, budget)].sum())
+    if budget <= n:
+        return done
+    later = np.arange(n + 1, budget + 1, dtype=float)
+    if grows and n >= 30:
+        idx = np.arange(1, n + 1, dtype=float)
+        coef = np.polyfit(idx, per_trial_s, 2)
+        floor = float(np.mean(per_trial_s[-max(5, n // 10) :]))
+        return done + float(np.maximum(np.polyval(coef, later), floor).sum())
+    return done + float(np.mean(per_trial_s)) * len(later)
+
+
+def lpt_makespan_s(run_s: Sequence[float], workers: int) -> float:
+    """Wall seconds to run independent runs on ``workers`` cores, longest runs first onto the
+    least loaded core (runs are not split)."""
+    load = [0.0] * max(1, workers)
+    for s in sorted(run_s, reverse=True):
+        i = int(np.argmin(load))
+        load[i] += s
+    return max(load)
+
+
+def projection_markdown(
+    rows: Sequence[dict[str, Any]],
+    *,
+    seeds: int = 5,
+    available: Sequence[str] = SWEEP_METHODS,
+    cluster_cores: int = 48,
+) -> list[str]:
+    """The full grid's projected time on one core and on a ``cluster_cores`` Ray cluster, from the
+    per-trial costs measured in ``rows``; (task, method, P) runs with no measurement borrow the
+    same method's curve at another P (then another task), and say so."""
+    curves = _trial_costs(rows)
+    longest: dict[tuple[str, str, int], int] = {}
+    for c in grid(available):
+        k = (c.task, c.method, c.levels)
+        longest[k] = max(longest.get(k, 0), c.trials)
+    lines = [
+        "## Projected time for the whole grid",
+        "",
+        f"{seeds} seeds per (task, method, P), each run as long as its largest cell. Per-trial "
+        "costs are this machine's measurements (shared, so on the high side); beyond the "
+        "measured trials BO follows a quadratic fitted to its measured cost curve, other "
+        "methods their mean trial cost. *borrowed*: no run of that P yet, the curve of the "
+        "same method at another P (or task) stands in.",
+        "",
+        "| Task | Method | P | Trials | measured trials | basis | s per run (projected) |",
+        "|---|---|---:|---:|---:|---|---:|",
+    ]
+    runs: list[float] = []
+    missing = []
+    for (task, method, p), budget in sorted(longest.items()):
+        curve = curves.get((task, method, p))
+        basis = "measured"
+        if curve is None:
+            near = [v for (t, m, _), v in curves.items() if (t, m) == (task, method)]
+            near = near or [v for (_, m, _), v in curves.items() if m == method]
+            curve = max(near, key=len) if near else None
+            basis = "borrowed"
+        if curve is None:
+            missing.append(f"{task}/{method}/P={p or '–'}")
+            continue
+        s = projected_run_s(curve, budget, grows=method.startswith("bo-"))
+        runs += [s] * seeds
+        shown = min(len(curve), budget) if basis == "measured" else 0
+        lines.append(
+            f"| {task} | {method} | {p or '–'} | {budget:,} | {shown:,} | {basis} | {s:,.0f} |"
+        )
+    total = sum(runs)
+    lines += [
+        "",
+        f"- One core: **{total / 3600:,.1f} h** ({len(runs)} runs).",
+        f"- A {cluster_cores}-core Ray cluster (one run per core, longest first): "
+        f"**{lpt_makespan_s(runs, cluster_cores) / 3600:,.1f} h**, bounded below by the longest "
+        f"run ({max(runs, default=0.0) / 3600:,.1f} h).",
+    ]
+    if missing:
+        lines.append(f"- Not projected (no measured run of the method): {', '.join(missing)}.")
+    return lines
 
 
 def _ours(v: list[float], ref: tuple[float, float] | None, chosen: bool, digits: int) -> str:

@@ -143,3 +143,27 @@ def test_cli_runs_a_slice_writes_paper_md_and_resumes_from_its_cache(tmp_path):
     assert float(ours.group(1)) == pytest.approx(np.mean(finals), abs=6e-4)
     again = handful(*args, "--no-progress", cwd=tmp_path)  # all cached: same table, no runs
     assert again.returncode == 0 and (out / "paper.md").read_text() == text
+
+
+def test_projected_cost_sums_measured_trials_and_extends_bo_by_its_fitted_curve():
+    flat = np.full(100, 0.5)
+    assert paper.projected_run_s(flat, 10_000, grows=False) == pytest.approx(5_000.0)
+    assert paper.projected_run_s(flat, 40, grows=False) == pytest.approx(20.0)  # measured only
+    # BO whose suggestion cost grows as 1e-5·i² + 0.1: the fit extends it to 500 trials
+    i = np.arange(1, 101, dtype=float)
+    truth = 1e-5 * np.arange(1, 501, dtype=float) ** 2 + 0.1
+    got = paper.projected_run_s(1e-5 * i**2 + 0.1, 500, grows=True)
+    assert got == pytest.approx(truth.sum(), rel=1e-6)
+    assert paper.projected_run_s(1e-5 * i**2 + 0.1, 500, grows=False) < 0.5 * truth.sum()
+    assert paper.lpt_makespan_s([10, 5, 5, 4], 2) == 14
+    assert paper.lpt_makespan_s([10, 5, 5, 4], 48) == 10
+
+
+def test_projection_says_which_runs_are_measured_borrowed_or_missing():
+    rows = _rows("random", "throw", 2, [27.5, 28.5], 100)  # wall 0.5 s a trial
+    text = "\n".join(paper.projection_markdown(rows, seeds=5, available=()))
+    assert "| throw | random | 2 | 10,000 | 100 | measured | 5,000 |" in text
+    assert "| hammer | random | 10 | 10,000 | 0 | borrowed | 5,000 |" in text
+    assert "throw/bo-lei/P=7" in text.split("Not projected")[1]
+    # random: 8 (task, P) × 5 seeds × 5,000 s on one core
+    assert "One core: **55.6 h** (40 runs)" in text

@@ -1,0 +1,109 @@
+"""Does the warm GP fit lose sample efficiency? BO-LEI with ``fit_mode="warm"`` (handful's bench
+default) against the paper's full refit after every trial, on the runs ``handful bench paper``
+cached for both, and what each whole run cost.
+
+    handful bench paper --cells "method=bo-lei P=7" --trials 100,500 --out docs/bench/paper/grid
+    handful bench paper --bo-fit full --cells "method=bo-lei P=7" --trials 100,500 \
+        --out docs/bench/paper/grid_full
+    python benchmarks/bo_fit_noloss.py --warm docs/bench/paper/grid \
+        --full docs/bench/paper/grid_full --levels 7 --budgets 100 500
+
+Writes a Markdown table (stdout, and ``--md``): best-so-far after each budget, mean ± std over
+the seeds both sides reached, Welch's two-sided t-test p-value, and the mean wall seconds of a
+whole run of that length (suggestion + episode, each run's own clock) with their ratio. Runs
+still in progress count for the budgets they have reached.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import ttest_ind
+
+from app.bench.cache import stored_rows
+from app.bench.specs import PAPER_COMMAND_HOLD, PAPER_OBJECTIVE_RULE, PAPER_PRESET, RunSpec
+
+
+def runs(out: Path, task: str, levels: int, fit: str, seeds: int) -> list[list[dict]]:
+    """Each seed's stored rows (finished or in progress) of bo-lei with ``fit_mode=fit``."""
+    got = []
+    for s in range(seeds):
+        spec = RunSpec(
+            "bo-lei",
+            task,
+            levels,
+            s,
+            10_000,
+            PAPER_PRESET,
+            settings={"fit_mode": fit},
+            command_hold=PAPER_COMMAND_HOLD,
+            objective_rule=PAPER_OBJECTIVE_RULE,
+        )
+        got.append(stored_rows(spec, out))
+    return got
+
+
+def at(rows_per_seed: list[list[dict]], budget: int) -> tuple[list[float], list[float]]:
+    """Best-so-far after ``budget`` trials and the run's wall seconds to get there, per seed."""
+    best, cost = [], []
+    for rows in rows_per_seed:
+        if len(rows) >= budget:
+            best.append(max(r["objective"] for r in rows[:budget]))
+            cost.append(sum(r["wall_s"] for r in rows[:budget]))
+    return best, cost
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--warm", type=Path, required=True, help="cache folder of the warm runs")
+    ap.add_argument("--full", type=Path, required=True, help="cache folder of the full runs")
+    ap.add_argument("--levels", type=int, default=7)
+    ap.add_argument("--budgets", type=int, nargs="+", default=[100, 500])
+    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--md", type=Path, help="also write the table here")
+    a = ap.parse_args()
+    lines = [
+        f"BO-LEI, P = {a.levels}: GP fit `warm` vs `full` (simulator preset `{PAPER_PRESET}`, "
+        f"command hold `{PAPER_COMMAND_HOLD}`, scoring rule `{PAPER_OBJECTIVE_RULE}`). "
+        "Best so far: mean ± std (ddof 1) over seeds (n); p: Welch's two-sided t-test; "
+        "cost: mean wall seconds of a whole run of that length.",
+        "",
+        "| Task | Trials | warm | full | Welch p | warm s/run | full s/run | full ÷ warm |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for task in ("throw", "hammer"):
+        w_runs = runs(a.warm, task, a.levels, "warm", a.seeds)
+        f_runs = runs(a.full, task, a.levels, "full", a.seeds)
+        for b in a.budgets:
+            (wb, wc), (fb, fc) = at(w_runs, b), at(f_runs, b)
+            if not wb and not fb:
+                lines.append(f"| {task} | {b} | *not run* | *not run* | | | | |")
+                continue
+
+            def fmt(v: list[float]) -> str:
+                if not v:
+                    return "*not run*"
+                sd = float(np.std(v, ddof=1)) if len(v) > 1 else 0.0
+                return f"{np.mean(v):.3f} ± {sd:.3f} ({len(v)})"
+
+            p = ""
+            if len(wb) >= 2 and len(fb) >= 2:
+                pv = float(ttest_ind(wb, fb, equal_var=False).pvalue)
+                p = "1.000" if math.isnan(pv) else f"{pv:.3f}"
+            ratio = f"{np.mean(fc) / np.mean(wc):.2f}×" if wc and fc else ""
+            lines.append(
+                f"| {task} | {b} | {fmt(wb)} | {fmt(fb)} | {p} "
+                f"| {np.mean(wc) if wc else float('nan'):.0f} "
+                f"| {np.mean(fc) if fc else float('nan'):.0f} | {ratio} |"
+            )
+    text = "\n".join(lines) + "\n"
+    print(text)
+    if a.md:
+        a.md.write_text(text)
+
+
+if __name__ == "__main__":
+    main()
