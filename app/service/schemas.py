@@ -156,8 +156,9 @@ class ExperimentCreate(_In):
         None,
         gt=0,
         le=1_000_000,
-        description="BO only: an observation's weight halves every this many trials after it "
-        "(None: all weigh the same)",
+        description="BO only: the GP trusts older data less; an observation this many trials "
+        "old carries extra noise as large as the data's spread, doubling (plus one) every such "
+        "span after (None: all weigh the same)",
     )
     reference: ReferenceIn | None = Field(
         None, description="hardware only: a drift check (a reference θ every k trials)"
