@@ -84,8 +84,8 @@ class Experiment(Base):
     #: measurement sources the objective is made of, comma-separated (None: the default for
     #: task and target, ``app.service.schemas.objective_sources_of``)
     objective_sources: Mapped[str | None] = mapped_column(String(64))
-    #: BO only: the half-life, in trials, of an observation's weight (None: every
-    #: observation weighs the same); passed to the BO optimiser as ``age_halflife_trials``
+    #: BO only: how fast the GP's trust in old data fades, in trials (None: all weigh the
+    #: same); passed to the BO optimiser's settings as ``age_halflife_trials``
     age_halflife_trials: Mapped[float | None] = mapped_column(Float)
     # drift checks (app.service.drift): a reference θ every k hardware trials
     reference_every: Mapped[int | None] = mapped_column(Integer)  # k; None: no references

@@ -131,11 +131,22 @@ def test_the_drift_chart_follows_the_reference_on_the_drifting_standin(
         seed=4,
         sim_preset="fast",
         limits=LIMITS,
-        reference={"every": 2, "baseline_n": 2},
     )
     login(page, server, "operator")
     page.goto(f"{server.url}/experiments/{exp['id']}")
+    # the operator schedules the check on the page: k = 1 is refused in words, k = 2 taken
+    page.locator("#drift-status").filter(has_text="No drift check scheduled").wait_for()
+    page.fill("#drift-every", "1")
+    page.click("#drift-save")
+    page.locator("#exp-error").filter(
+        has_text="“1” is not a whole number of trials of 2"
+    ).wait_for()
+    assert api.get_experiment(exp["id"])["reference"] is None
+    page.fill("#drift-every", "2")
+    page.fill("#drift-m", "2")
+    page.click("#drift-save")
     page.locator("#drift-status").filter(has_text="every 2 hardware trials").wait_for()
+    assert api.get_experiment(exp["id"])["reference"]["baseline_n"] == 2
     assert drift_chart_indices(page) == []
     with standin_worker(server, tmp_path):
         first = run_until_reference_scored(page, api, exp["id"])
