@@ -24,7 +24,8 @@ The rules (docs/ARCHITECTURE.md, "Drift checks"):
   mean; half-width = ``tolerance`` if set, else 2 × the larger of their standard deviation
   and the RMS of their own SEMs (the measurement noise). A later reference beyond it has
   shifted; when the latest one has, the page warns, and every change of a reference's
-  verdict is written to the audit log (``drift.shift`` / ``drift.back_in_band``).
+  verdict (a new score, a correction, new band settings) is written to the audit log
+  (``drift.shift`` / ``drift.back_in_band``).
 """
 
 from __future__ import annotations
@@ -481,13 +482,15 @@ def set_reference(
     apply_reference(session, exp, body, actor=actor)
     touch(exp)
     session.flush()
+    check_drift(session, experiment_id)  # a new band may change the verdicts
     return drift_view(session, experiment_id)
 
 
 def check_drift(session: Session, experiment_id: int, *, now: datetime | None = None) -> None:
-    """After a reference trial's objective changed: judge every scored reference again and
-    append ``drift.shift`` / ``drift.back_in_band`` to the audit log for each whose verdict
-    changed (a correction of a baseline score moves the band for all of them)."""
+    """After a reference trial's objective or the band's settings changed: judge every scored
+    reference again and append ``drift.shift`` / ``drift.back_in_band`` to the audit log for
+    each whose verdict changed (a correction of a baseline score, or a new tolerance, moves
+    the band for all of them)."""
     exp = session.get(Experiment, experiment_id)
     if exp is None or exp.reference_every is None:
         return

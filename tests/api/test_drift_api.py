@@ -163,3 +163,12 @@ def test_a_shift_beyond_the_band_warns_and_is_audited_a_score_within_does_neithe
     drift = api.drift(exp["id"])
     assert not drift["shifted"] and drift["warning"] == ""
     assert [a["action"] for a in drift_audit()] == ["drift.back_in_band", "drift.shift"]
+    # a narrower band (± 0.03 m/s): the 4th reference (1.05) is now beyond it, the 5th not
+    drift = api.set_reference(
+        exp["id"], every=2, theta_from="trial", trial_index=1, baseline_n=3, tolerance=0.03
+    )
+    assert [p["outside"] for p in drift["points"]] == [False, False, False, True, False]
+    assert not drift["shifted"]  # the latest is within
+    audit = drift_audit()
+    assert (audit[0]["action"], audit[0]["trial_id"]) == ("drift.shift", refs[3]["id"])
+    assert len(audit) == 3

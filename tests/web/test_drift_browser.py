@@ -26,13 +26,15 @@ from tests.web.test_dashboard_browser import login
 
 REPO = Path(__file__).resolve().parents[2]
 LIMITS = {"nominal_pa": 100_000.0, "max_step_pa": 30_000.0, "source_pa": 205_000.0}
-#: a stand-in that wears visibly and never faults (a faulted trial needs a person's review)
+#: a stand-in that drifts visibly (its pressure bias and stiffness wander in larger steps,
+#: the stiffness sinks with wear) and never faults (a faulted trial needs a person's review)
 DRIFTING = {
     "seed": "3",
     "state_file": "",
     "preset": "fast",
-    "bias_step_pa": "3000",
-    "stiffness_step": "0.03",
+    "bias_step_pa": "10000",
+    "stiffness_step": "0.05",
+    "wear_per_trial": "0.01",
     "fault_probability": "0",
     "tracker_loss_probability": "0",
 }
@@ -159,6 +161,16 @@ def test_the_drift_chart_follows_the_reference_on_the_drifting_standin(
         third = run_until_reference_scored(page, api, exp["id"])
     assert first["theta"] == second["theta"] == third["theta"]  # the frozen incumbent
     assert [first["index"], second["index"], third["index"]] == [2, 4, 6]  # every 2nd trial
-    # the same θ, yet tracker noise and wear: no two scores alike
+    # the same θ, yet the robot drifted (and the tracker is noisy): no two scores alike
     assert len({first["objective"], second["objective"], third["objective"]}) == 3
+    # the operator narrows the band below the third's shift: the page warns, the log says so
+    drift = api.drift(exp["id"])
+    shift = abs(third["objective"] - drift["band"]["center"])
+    page.fill("#drift-tolerance", f"{shift / 2:.6f}")
+    page.click("#drift-save")
+    page.locator("#drift-warning").filter(
+        has_text=f"reference trial {third['index']} scored"
+    ).wait_for()
+    [entry] = [a for a in api.audit(exp["id"]) if a["action"] == "drift.shift"]
+    assert entry["trial_id"] == third["id"]
     page.locator("#drift-card").screenshot(path=str(screenshots / "drift_chart.png"))
