@@ -52,7 +52,6 @@ from app.service.schemas import (
     DriftRead,
     ExperimentRead,
     ReferenceIn,
-    ReferenceRead,
 )
 
 REFERENCE = "reference"  # Trial.source of a reference trial
@@ -463,13 +462,6 @@ def drift_view(session: Session, experiment_id: int) -> DriftRead:
         message=message,
         next_reference_in=next_in,
     )
-
-
-def read_reference(session: Session, experiment_id: int) -> ReferenceRead | None:
-    """The experiment's drift-check schedule (None: none)."""
-    from app.service.experiments import get_experiment
-
-    return ExperimentRead.build(get_experiment(session, experiment_id)).reference
 
 
 def set_reference(
