@@ -256,6 +256,19 @@ class HandfulClient:
         """Lengthscales, incumbent and posterior slices."""
         return self.request("GET", f"/api/experiments/{experiment_id}/model")
 
+    def drift(self, experiment_id: int) -> JSON:
+        """The drift check: the reference's scores, the band, the warning."""
+        return self.request("GET", f"/api/experiments/{experiment_id}/drift")
+
+    def set_reference(self, experiment_id: int, **fields: Any) -> JSON:
+        """Schedule a reference θ: ``every`` (k ≥ 2), ``theta_from`` (incumbent | trial),
+        ``trial_index``, ``baseline_n``, ``tolerance``; returns the drift check."""
+        return self.request("PUT", f"/api/experiments/{experiment_id}/reference", json=fields)
+
+    def stop_reference(self, experiment_id: int) -> JSON:
+        """Stop scheduling reference trials."""
+        return self.request("DELETE", f"/api/experiments/{experiment_id}/reference")
+
     def audit(self, experiment_id: int, limit: int = 500) -> list[JSON]:
         return self.request(
             "GET", f"/api/experiments/{experiment_id}/audit", params={"limit": limit}

@@ -19,7 +19,7 @@ from sqlalchemy import text
 
 from app.api import errors
 from app.api.limits import BodySizeLimit, SecurityHeaders
-from app.api.routes import auth, experiments, trials, workers
+from app.api.routes import auth, drift, experiments, trials, workers
 from app.config import Settings
 from app.db.session import Database
 from app.service.auth import LoginLimiter
@@ -172,7 +172,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
     app.add_middleware(SecurityHeaders)
     errors.install(app)
-    for module in (auth, experiments, trials, workers):
+    for module in (auth, experiments, drift, trials, workers):
         app.include_router(module.router, prefix="/api", responses=errors.ERROR_RESPONSES)
 
     @app.get(

@@ -84,6 +84,20 @@ class Experiment(Base):
     #: measurement sources the objective is made of, comma-separated (None: the default for
     #: task and target, ``app.service.schemas.objective_sources_of``)
     objective_sources: Mapped[str | None] = mapped_column(String(64))
+    #: BO only: how fast the GP's trust in old data fades, in trials (None: all weigh the
+    #: same); passed to the BO optimiser's settings as ``age_halflife_trials``
+    age_halflife_trials: Mapped[float | None] = mapped_column(Float)
+    # drift checks (app.service.drift): a reference θ every k hardware trials
+    reference_every: Mapped[int | None] = mapped_column(Integer)  # k; None: no references
+    reference_theta_from: Mapped[str | None] = mapped_column(String(16))  # incumbent | trial
+    #: the trial whose θ the references repeat (chosen, or the incumbent once frozen)
+    reference_trial_id: Mapped[int | None] = mapped_column(Integer)
+    #: the θ every reference runs (None until the incumbent is frozen by the first reference)
+    reference_theta: Mapped[list[float] | None] = mapped_column(JSON)
+    #: the band is drawn from the first m scored references
+    drift_baseline_n: Mapped[int] = mapped_column(Integer, default=3, server_default="3")
+    #: the band's half-width in the objective's unit (None: 2 × the baseline's spread)
+    drift_tolerance: Mapped[float | None] = mapped_column(Float)
     # bookkeeping
     budget: Mapped[int | None] = mapped_column(Integer)
     status: Mapped[str] = mapped_column(String(16), default="active")
@@ -109,7 +123,9 @@ class Trial(Base):
     index: Mapped[int] = mapped_column(Integer)
     status: Mapped[str] = mapped_column(String(32), index=True)
     status_reason: Mapped[str] = mapped_column(Text, default="")
-    source: Mapped[str] = mapped_column(String(16))  # optimizer | operator | import
+    #: optimizer | operator | import | reference (a drift check: the experiment's reference θ
+    #: again, scheduled every k hardware trials, app.service.drift)
+    source: Mapped[str] = mapped_column(String(16))
     note: Mapped[str] = mapped_column(Text, default="")
     theta: Mapped[list[float]] = mapped_column(JSON)
     pressure_schedule_pa: Mapped[list[list[float]]] = mapped_column(JSON)

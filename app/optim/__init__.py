@@ -3,6 +3,10 @@
 opt = make_optimizer("bo-lei", dim=11, seed=0)
 theta = opt.suggest(1)          # (1, 11) in [0, 1]
 opt.observe(theta[0], 17.3)     # or observe_many([Observation(...), ...]) to rebuild
+opt.suggestion_basis()          # what the last suggestion leaned on (prior, design, model)
+
+A sim prior: ``make_optimizer(..., prior=PriorData(theta, objective), prior_mode=...)`` or
+``OptimizerSpec(..., prior=...)``; see ``app.optim.prior``.
 
 Importing this package loads no torch: BoTorch is imported when a BO optimiser is built.
 """
@@ -28,19 +32,32 @@ from app.optim.methods import (
     NEEDS_LEVELS,
     OptimizerSpec,
 )
+from app.optim.prior import PRIOR_MODES, PriorData, check_prior_settings
 
 if TYPE_CHECKING:
     from app.optim.bo import BayesOpt
 
 
-def make_optimizer(method: str, dim: int, *, seed: int, **settings: Any) -> Optimizer:
+def make_optimizer(
+    method: str, dim: int, *, seed: int, prior: PriorData | None = None, **settings: Any
+) -> Optimizer:
     """Build an optimiser by name (one of ``METHODS``) for θ ∈ [0,1]^dim.
 
+    ``prior``: another experiment's trials to lean on, as the settings ``prior_mode``
+    ("multitask": BO methods only, their default; "warmstart": every method, the others'
+    default) and ``prior_top_k`` (the prior's best θ that start the design, 2) say. Both
+    settings are checked (and ignored) without a prior.
+
     Raises:
-        SettingsError (a ValueError): unknown method or a bad setting.
+        SettingsError (a ValueError): unknown method, a bad setting, or a prior that does not
+        fit (wrong D).
     """
     if method not in METHODS:
         raise SettingsError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
+    settings = dict(settings)
+    prior_mode, prior_top_k = check_prior_settings(method, method in BO_METHODS, settings)
+    if prior is not None and not isinstance(prior, PriorData):
+        raise SettingsError(f"prior must be a PriorData, got {type(prior).__name__}")
     try:
         if method in BO_METHODS:
             from app.optim.bo import BayesOpt
@@ -57,12 +74,14 @@ def make_optimizer(method: str, dim: int, *, seed: int, **settings: Any) -> Opti
     except TypeError as exc:  # an unexpected keyword: name it as a bad setting
         raise SettingsError(f"{method}: {exc}") from None
     opt.method = method
+    if prior is not None:
+        opt.use_prior(prior, prior_mode, prior_top_k)
     return opt
 
 
 def build_optimizer(spec: OptimizerSpec) -> Optimizer:
     """The optimiser ``spec`` describes (the one way the service and the benchmarks build one)."""
-    return make_optimizer(spec.method, spec.dim, seed=spec.seed, **spec.kwargs())
+    return make_optimizer(spec.method, spec.dim, seed=spec.seed, prior=spec.prior, **spec.kwargs())
 
 
 def __getattr__(name: str) -> Any:
@@ -81,6 +100,7 @@ __all__ = [
     "DEFAULT_METHOD",
     "METHODS",
     "NEEDS_LEVELS",
+    "PRIOR_MODES",
     "BayesOpt",
     "Observation",
     "ObservationError",
@@ -88,6 +108,7 @@ __all__ = [
     "Optimizer",
     "OptimizerSpec",
     "OptunaSampler",
+    "PriorData",
     "RandomSearch",
     "SettingsError",
     "Surrogate",

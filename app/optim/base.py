@@ -11,6 +11,7 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -57,6 +58,10 @@ class Optimizer(ABC):
 
     method: str = ""
     n_initial: int = 0
+    #: the prior's θ and objective (``app.optim.prior.PriorData``), set by ``use_prior``
+    prior: Any = None
+    prior_mode: str | None = None
+    prior_top_k: int = 0
 
     def __init__(self, dim: int, *, seed: int) -> None:
         if isinstance(dim, bool) or not isinstance(dim, int | np.integer) or dim < 1:
@@ -68,6 +73,45 @@ class Optimizer(ABC):
         self._x: list[np.ndarray] = []
         self._y: list[float] = []
         self._sem: list[float | None] = []
+        self._basis: dict[str, Any] = {}
+
+    # --- prior ---------------------------------------------------------------------------------
+    def use_prior(self, prior: Any, mode: str, top_k: int) -> None:
+        """Lean on ``prior`` (a ``PriorData`` with this optimiser's D) in ``mode``: here
+        "warmstart" (the first ``top_k`` suggestions are the prior's best θ); BO overrides it for
+        "multitask". Called by ``make_optimizer`` before any observation."""
+        prior.check_dim(self.dim)
+        if mode != "warmstart":
+            name = self.method or type(self).__name__
+            raise SettingsError(f"{name} cannot use prior_mode {mode!r}")
+        self.prior, self.prior_mode, self.prior_top_k = prior, mode, int(top_k)
+
+    def _prior_points(self, start: int, n: int, pending: np.ndarray) -> np.ndarray:
+        """Up to ``n`` of the prior's best θ for suggestion indices ``start ..`` (those below
+        ``prior_top_k``), skipping any already observed or pending."""
+        if self.prior is None or start >= self.prior_top_k:
+            return np.zeros((0, self.dim))
+        taken = [*self._x, *pending]
+        out: list[np.ndarray] = []
+        for th in self.prior.best(self.prior_top_k)[start:]:
+            if len(out) == n:
+                break
+            if any(np.allclose(th, t, rtol=0, atol=1e-12) for t in taken):
+                continue
+            out.append(th)
+        return np.asarray(out, dtype=np.float64).reshape(-1, self.dim)
+
+    def suggestion_basis(self) -> dict[str, Any]:
+        """What the last ``suggest`` leaned on (JSON-safe), for the operator:
+
+        ``mode`` ("multitask", "warmstart" or None: no prior), ``n_prior`` (prior trials the
+        suggestion used: its θ came from them or a model saw them), ``n_own`` (this
+        optimiser's observations), ``steps`` (per suggested θ: "prior" (one of the prior's
+        best θ), "design" (the initial design) or "model"), and ``task_correlation`` (the
+        multitask GP's learned correlation between prior and own data, else None).
+        Empty before the first ``suggest``.
+        """
+        return dict(self._basis)
 
     # --- data ---------------------------------------------------------------------------------
     @property
@@ -169,8 +213,40 @@ class Optimizer(ABC):
             pend = np.zeros((0, self.dim))
         else:
             pend = self._check_theta(pending, "pending θ")
-        out = np.asarray(self._suggest(int(n), pend), dtype=np.float64)
+        start = self.n_observed + len(pend)
+        warm = self._prior_points(start, int(n), pend)
+        steps = ["prior"] * len(warm)
+        if len(warm) < n:
+            rest = np.asarray(
+                self._suggest(int(n) - len(warm), np.concatenate([pend, warm])), dtype=np.float64
+            ).reshape(int(n) - len(warm), self.dim)
+            out = np.concatenate([warm, rest])
+            steps += [self._default_step(start + len(warm) + i) for i in range(len(rest))]
+        else:
+            out = warm
+        self._basis = {
+            "mode": self.prior_mode if self.prior is not None else None,
+            "n_prior": self._n_prior_used(steps),
+            "n_own": self.n_observed,
+            "steps": steps,
+            "task_correlation": self._task_correlation(steps),
+        }
         return np.clip(out.reshape(int(n), self.dim), 0.0, 1.0)
+
+    def _default_step(self, index: int) -> str:
+        """The step of a suggestion at index ``index`` when ``_suggest`` did not say."""
+        return "design" if index < self.n_initial else "model"
+
+    def _n_prior_used(self, steps: list[str]) -> int:
+        if self.prior is None:
+            return 0
+        if self.prior_mode == "multitask" and "model" in steps:
+            return self.prior.n
+        return self.prior.n if "prior" in steps else 0
+
+    def _task_correlation(self, steps: list[str]) -> float | None:
+        """The multitask GP's learned prior↔own correlation (BO overrides it)."""
+        return None
 
     @abstractmethod
     def _suggest(self, n: int, pending: np.ndarray) -> np.ndarray:

@@ -46,6 +46,9 @@ class RandomSearch(Optimizer):
         super().__init__(dim, seed=seed)
         self.population = _positive_int("population", population)
 
+    def _default_step(self, index: int) -> str:
+        return "design"  # every point is a uniform draw
+
     def _suggest(self, n: int, pending: np.ndarray) -> np.ndarray:
         start = self.n_observed + len(pending)
         return np.stack(

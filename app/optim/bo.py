@@ -32,7 +32,7 @@ from botorch.acquisition import (
 )
 from botorch.acquisition.analytic import UpperConfidenceBound
 from botorch.fit import fit_gpytorch_mll
-from botorch.models import SingleTaskGP
+from botorch.models import MultiTaskGP, SingleTaskGP
 from botorch.models.transforms import Normalize, Standardize
 from botorch.models.utils.gpytorch_modules import (
     get_gaussian_likelihood_with_gamma_prior,
@@ -40,6 +40,7 @@ from botorch.models.utils.gpytorch_modules import (
 )
 from botorch.optim import optimize_acqf, optimize_acqf_discrete_local_search
 from botorch.sampling import SobolQMCNormalSampler
+from gpytorch.likelihoods import FixedNoiseGaussianLikelihood
 from gpytorch.mlls import ExactMarginalLogLikelihood
 
 from app.optim.base import Optimizer, SettingsError, Surrogate, call_seed
@@ -79,6 +80,7 @@ class BOSettings:
     refit_every: int = 10
     refit_fraction: float = 0.1
     warm_maxiter: int = 20
+    age_halflife_trials: float | None = None
 
 
 #: integer settings and their sane ranges (beyond them a suggestion costs minutes or more)
@@ -132,6 +134,13 @@ def _check_settings(dim: int, settings: dict[str, Any]) -> BOSettings:
         raise SettingsError(f"trust_region must be true or false, got {s.trust_region!r}")
     if s.trust_region and s.space != "theta":
         raise SettingsError("trust_region needs space='theta'")
+    h = s.age_halflife_trials
+    if h is not None and (
+        isinstance(h, bool) or not isinstance(h, int | float) or not math.isfinite(h) or h <= 0
+    ):
+        raise SettingsError(
+            f"age_halflife_trials must be a number of trials > 0 or None (off), got {h!r}"
+        )
     if not isinstance(s.distinct, bool):
         raise SettingsError(f"distinct must be true or false, got {s.distinct!r}")
     if not 0.0 <= s.corner_prob <= 1.0:
@@ -207,17 +216,42 @@ def anchor_size(n: int, every: int, fraction: float) -> int:
         a = nxt
 
 
+def age_noise(n: int, halflife: float) -> np.ndarray:
+    """(n,) extra noise variance, in units of the observations' variance, of observations
+    0 .. n-1 (oldest first) when data are weighed by age: 2^(a / halflife) − 1 for an
+    observation a trials old (a = n-1-i). The newest adds nothing; one ``halflife`` trials old
+    adds as much noise as the data's whole spread, and it doubles (plus one) every halflife."""
+    ages = np.arange(n - 1, -1, -1, dtype=np.float64)
+    return np.exp2(ages / float(halflife)) - 1.0
+
+
+def _extra_noise_likelihood(noise: torch.Tensor, model_preset: str) -> FixedNoiseGaussianLikelihood:
+    """A likelihood with known per-point noise (standardised units) plus a learned
+    homoskedastic noise (the ``paper`` preset's Gamma(1.1, 0.05) prior on it)."""
+    kwargs: dict[str, Any] = {}
+    if model_preset == "paper":
+        from gpytorch.priors import GammaPrior
+
+        kwargs["noise_prior"] = GammaPrior(1.1, 0.05)
+    return FixedNoiseGaussianLikelihood(
+        noise=noise.clamp_min(1e-6), learn_additional_noise=True, **kwargs
+    )
+
+
 def build_gp(
     train_x: torch.Tensor,
     train_y: torch.Tensor,
     train_yvar: torch.Tensor | None,
     model_preset: str,
+    extra_noise: torch.Tensor | None = None,
 ) -> SingleTaskGP:
     """A SingleTaskGP on (N, F) inputs in [0,1] and (N, 1) outcomes; not yet fitted.
 
     ``paper``: ARD Matérn-5/2 in a ScaleKernel with BoTorch's older Gamma priors
     (lengthscale Gamma(3, 6), outputscale Gamma(2, 0.15), noise Gamma(1.1, 0.05)).
     ``default``: today's SingleTaskGP default (RBF, dimension-scaled LogNormal priors).
+    ``extra_noise`` (N,): known noise variance per point in standardised units (weighing by
+    age, ``age_noise``), on top of a learned noise; ``train_yvar`` is then folded into it.
     """
     f = train_x.shape[-1]
     kwargs: dict[str, Any] = {
@@ -228,7 +262,55 @@ def build_gp(
         kwargs["covar_module"] = get_matern_kernel_with_gamma_prior(ard_num_dims=f)
         if train_yvar is None:
             kwargs["likelihood"] = get_gaussian_likelihood_with_gamma_prior()
+    if extra_noise is not None:
+        noise = extra_noise.reshape(-1)
+        if train_yvar is not None:
+            noise = noise + train_yvar.reshape(-1) / train_y.var().clamp_min(1e-12)
+            train_yvar = None
+        kwargs["likelihood"] = _extra_noise_likelihood(noise, model_preset)
     return SingleTaskGP(train_x, train_y, train_yvar, **kwargs)
+
+
+def build_multitask_gp(
+    prior_x: torch.Tensor,
+    prior_y: torch.Tensor,
+    train_x: torch.Tensor,
+    train_y: torch.Tensor,
+    model_preset: str,
+    extra_noise: torch.Tensor | None = None,
+) -> MultiTaskGP:
+    """BoTorch's MultiTaskGP over (θ features, source): the prior's (M, F) inputs and (M, 1)
+    outcomes as task 0, the optimiser's own (N, F) and (N, 1) as task 1, the model's only
+    output (its posterior is task 1's). Both tasks share one input kernel (``paper``: the
+    Matérn-5/2 with Gamma priors; ``default``: BoTorch's); a rank-1 positive index kernel
+    learns how the tasks correlate; each task has its own mean and (without ``extra_noise``)
+    its own noise. Outcomes are standardised together. Not yet fitted.
+
+    ``extra_noise`` (N,): known extra noise variance of the own observations (weighing by
+    age); the prior's points get none; a learned homoskedastic noise comes on top."""
+    f = train_x.shape[-1]
+    x = torch.cat(
+        [
+            torch.cat([prior_x, torch.zeros(len(prior_x), 1, dtype=DTYPE)], dim=-1),
+            torch.cat([train_x, torch.ones(len(train_x), 1, dtype=DTYPE)], dim=-1),
+        ]
+    )
+    y = torch.cat([prior_y, train_y])
+    kwargs: dict[str, Any] = {"output_tasks": [1], "all_tasks": [0, 1], "rank": 1}
+    if model_preset == "paper":
+        kwargs["covar_module"] = get_matern_kernel_with_gamma_prior(ard_num_dims=f)
+    if extra_noise is not None:
+        noise = torch.cat([torch.zeros(len(prior_x), dtype=DTYPE), extra_noise.reshape(-1)])
+        kwargs["likelihood"] = _extra_noise_likelihood(noise, model_preset)
+    return MultiTaskGP(x, y, task_feature=f, **kwargs)
+
+
+def task_correlation(model: MultiTaskGP) -> float:
+    """The learned correlation between a MultiTaskGP's tasks 0 and 1 (−1 .. 1)."""
+    task_kernel = model.covar_module.kernels[1]
+    with torch.no_grad():
+        b = task_kernel.covar_matrix.to_dense()
+    return float(b[0, 1] / torch.sqrt(b[0, 0] * b[1, 1]).clamp_min(1e-300))
 
 
 def fit_gp(model: SingleTaskGP, maxiter: int | None = None) -> SingleTaskGP:
@@ -283,6 +365,15 @@ class BayesOpt(Optimizer, Surrogate):
         distinct: never suggest θ whose schedule (``Policy.grid_from_theta``: the decoded
             levels and release step; needs ``levels``) was observed or is pending: the acquisition's
             best local optimum with a new schedule, else the best new one of its raw samples.
+        age_halflife_trials: weigh data by age (None: off). An observation ``a`` trials older
+            than the newest gets extra noise variance (2^(a/h) − 1)·Var(y) on top of the
+            learned noise (``age_noise``), so the GP trusts old trials less as the robot drifts;
+            prior data (multitask) are not aged.
+
+    With a prior (``use_prior``, see ``app.optim.prior``): "warmstart" starts the Sobol design
+    with the prior's best θ; "multitask" replaces the design by them (``n_initial`` becomes
+    ``prior_top_k``, at least 1) and fits ``build_multitask_gp`` to prior and own data from the
+    first own observation on (always fitted in full, whatever ``fit_mode``).
     """
 
     method = "bo"
@@ -305,6 +396,34 @@ class BayesOpt(Optimizer, Surrogate):
         self._model_n = -1
         # fit_mode="warm": the last anchor's size and fitted raw hyperparameters
         self._anchor: tuple[int, dict[str, torch.Tensor]] | None = None
+
+    def use_prior(self, prior: Any, mode: str, top_k: int) -> None:
+        """Lean on ``prior`` (``PriorData``): "warmstart" or "multitask" (see the class)."""
+        prior.check_dim(self.dim)
+        self.prior, self.prior_mode, self.prior_top_k = prior, mode, int(top_k)
+        if mode == "multitask":
+            self.n_initial = max(int(top_k), 1)
+            self._model = None
+
+    @property
+    def multitask(self) -> bool:
+        """Whether the model is the multitask GP over prior and own data."""
+        return self.prior is not None and self.prior_mode == "multitask"
+
+    @property
+    def _min_observed(self) -> int:
+        """Own observations the model needs (the multitask GP has the prior's besides)."""
+        return 1 if self.multitask else 2
+
+    def _default_step(self, index: int) -> str:
+        if index < self.n_initial or self.n_observed < self._min_observed:
+            return "design"
+        return "model"
+
+    def _task_correlation(self, steps: list[str]) -> float | None:
+        if not self.multitask or "model" not in steps:
+            return None
+        return task_correlation(self.model())
 
     # --- representation -----------------------------------------------------------------------
     @property
@@ -354,20 +473,36 @@ class BayesOpt(Optimizer, Surrogate):
         yvar = np.maximum(filled**2, floor)
         return tx, ty, torch.as_tensor(yvar, dtype=DTYPE).unsqueeze(-1)
 
-    def _fit(self, n: int, start: dict[str, torch.Tensor] | None = None) -> SingleTaskGP:
+    def _extra_noise(self, n: int) -> torch.Tensor | None:
+        """(n,) age noise of the first ``n`` observations, or None (not weighed by age)."""
+        h = self.settings.age_halflife_trials
+        if h is None:
+            return None
+        return torch.as_tensor(age_noise(n, h), dtype=DTYPE)
+
+    def _fit(
+        self, n: int, start: dict[str, torch.Tensor] | None = None
+    ) -> SingleTaskGP | MultiTaskGP:
         """The GP of the first ``n`` observations, fitted from the priors' defaults or, with
         ``start``, from those hyperparameters (raw parameter name → tensor)."""
         tx, ty, tyvar = self._train_tensors(n)
         with _TORCH_RNG_LOCK, torch.random.fork_rng():
             torch.manual_seed(call_seed(self.seed, n, 0, salt=1))
-            gp = build_gp(tx, ty, tyvar, self.settings.model_preset)
+            if self.multitask:
+                px = torch.as_tensor(self._features(np.array(self.prior.theta)), dtype=DTYPE)
+                py = torch.as_tensor(np.array(self.prior.objective), dtype=DTYPE).unsqueeze(-1)
+                mt = build_multitask_gp(
+                    px, py, tx, ty, self.settings.model_preset, self._extra_noise(n)
+                )
+                return fit_gp(mt, self.settings.fit_maxiter)
+            gp = build_gp(tx, ty, tyvar, self.settings.model_preset, self._extra_noise(n))
             maxiter = self.settings.fit_maxiter
             if start is not None:
                 gp.load_state_dict(start, strict=False)
                 maxiter = min(maxiter or self.settings.warm_maxiter, self.settings.warm_maxiter)
             return fit_gp(gp, maxiter)
 
-    def model(self) -> SingleTaskGP:
+    def model(self) -> SingleTaskGP | MultiTaskGP:
         """The GP fitted to all observations so far (refit after any new observation).
 
         ``fit_mode="full"`` (the paper) fits every GP from the priors' defaults.
@@ -376,13 +511,13 @@ class BayesOpt(Optimizer, Surrogate):
         about a hundred at N = 500. Either way the model is a function of the data alone, so a
         rebuilt optimiser agrees with a live one (a rebuilt one pays for its anchor fit once).
         """
-        if self.n_observed < 2:
-            raise SettingsError("the GP needs at least 2 observations")
+        if self.n_observed < self._min_observed:
+            raise SettingsError(f"the GP needs at least {self._min_observed} observations")
         n = self.n_observed
         if self._model is not None and self._model_n == n:
             return self._model
         s = self.settings
-        if s.fit_mode == "full":
+        if s.fit_mode == "full" or self.multitask:
             self._model = self._fit(n)
         else:
             a = anchor_size(n, s.refit_every, s.refit_fraction)
@@ -411,6 +546,8 @@ class BayesOpt(Optimizer, Surrogate):
     def feature_lengthscales(self) -> np.ndarray:
         """(F,) fitted lengthscales of the GP's inputs (θ dims, or level features)."""
         covar = self.model().covar_module
+        if self.multitask:
+            covar = covar.kernels[0]  # the input kernel (the other one is the task kernel)
         kernel = getattr(covar, "base_kernel", covar)
         return kernel.lengthscale.detach().reshape(-1).numpy().copy()
 
@@ -477,7 +614,7 @@ class BayesOpt(Optimizer, Surrogate):
     def _suggest(self, n: int, pending: np.ndarray) -> np.ndarray:
         start = self.n_observed + len(pending)
         n_init = max(0, min(n, self.n_initial - start))
-        if self.n_observed < 2:
+        if self.n_observed < self._min_observed:
             n_init = n
         out = [self._design_points(start, n_init, pending)] if n_init else []
         if n_init < n:

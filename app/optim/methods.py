@@ -5,6 +5,10 @@ shape into an optimiser's settings. Imports no torch (the service's schemas and 
     spec.dim        # 11
     spec.kwargs()   # the settings ``make_optimizer`` gets: {"levels": 5, "horizon": 10}
     app.optim.build_optimizer(spec)
+
+A sim prior rides along as ``OptimizerSpec(..., prior=PriorData(theta, objective))`` with the
+settings ``prior_mode`` ("multitask": BO only, the BO default; "warmstart": any method, the
+others' default) and ``prior_top_k`` (2); see ``app.optim.prior``.
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from app.optim.prior import PriorData
 from app.policy import policy_dim
 
 # BO variants: method name → fixed settings (a caller's settings may override them).
@@ -61,7 +66,9 @@ def needs_levels(method: str, settings: Mapping[str, Any]) -> bool:
 class OptimizerSpec:
     """Everything an optimiser is built from: the method, the policy's shape (P, H, release
     step), the seed, and the caller's settings. ``n_initial``, ``acquisition`` and ``kappa``
-    (None: the method's own) are the experiment's BO columns; other methods ignore them."""
+    (None: the method's own) are the experiment's BO columns; other methods ignore them.
+    ``prior``: data from another experiment (a sim prior) the optimiser leans on, as the
+    settings' ``prior_mode`` says (see ``app.optim.prior``)."""
 
     method: str
     levels: int
@@ -72,6 +79,7 @@ class OptimizerSpec:
     n_initial: int | None = None
     acquisition: str | None = None
     kappa: float | None = None
+    prior: PriorData | None = None
 
     @property
     def dim(self) -> int:

@@ -18,7 +18,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import Table, insert, select
+from sqlalchemy import Table, insert, select, update
 from sqlalchemy.orm import Session
 
 from app.db.base import UTCDateTime
@@ -127,6 +127,13 @@ def import_bundle(
     for t in tables["trials"]:
         trial_map[int(t["id"])] = _insert(
             session, trials_t, _values(trials_t, t, experiment_id=exp_id)
+        )
+
+    if exp_row.get("reference_trial_id") is not None:  # the drift check's trial, renumbered
+        session.execute(
+            update(exp_t)
+            .where(exp_t.c.id == exp_id)
+            .values(reference_trial_id=trial_map.get(int(exp_row["reference_trial_id"])))
         )
 
     def trial_of(row: dict[str, Any]) -> int:

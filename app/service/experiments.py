@@ -16,9 +16,22 @@ from app.optim.methods import METHODS, OptimizerSpec
 from app.policy import RELEASE_TASKS, HardwareCeilings, Policy, PolicyError, PressureLimits
 from app.service.audit import record
 from app.service.auth import Actor
+from app.service.drift import (
+    REFERENCE,
+    apply_reference,
+    check_age_halflife,
+    check_no_age_in_settings,
+    optimizer_settings_with_age,
+)
 from app.service.errors import InvalidInput, NotFound
 from app.service.lifecycle import COMPLETED
-from app.service.schemas import AuditRead, ExperimentCreate, ExperimentPatch, ExperimentRead
+from app.service.schemas import (
+    REFERENCE_COUNT,
+    AuditRead,
+    ExperimentCreate,
+    ExperimentPatch,
+    ExperimentRead,
+)
 
 DEFAULT_UNIT = {"tip_speed": "m/s", "throw": "score", "hammer": "score"}
 
@@ -89,7 +102,7 @@ def optimizer_spec(exp: Experiment) -> OptimizerSpec:
         horizon=exp.horizon,
         with_release=exp.with_release,
         seed=exp.seed,
-        settings=dict(exp.optimizer_settings or {}),
+        settings=optimizer_settings_with_age(exp),
         n_initial=exp.n_initial,
         acquisition=exp.acquisition,
         kappa=exp.kappa,
@@ -142,6 +155,8 @@ def create_experiment(
         raise InvalidInput(str(exc)) from None
     if spec.method not in METHODS:
         raise InvalidInput(f"method {spec.method!r} is not one of {', '.join(METHODS)}")
+    check_no_age_in_settings(spec.optimizer_settings)
+    check_age_halflife(spec.method, spec.age_halflife_trials)
     n_initial = spec.n_initial if spec.n_initial is not None else policy.dim + 1
     if spec.budget is not None and n_initial > spec.budget and spec.method in _bo_methods():
         raise InvalidInput(
@@ -175,7 +190,16 @@ def create_experiment(
         notes=spec.notes,
         version=1,
         created_by=actor.username,
+        age_halflife_trials=spec.age_halflife_trials,
+        drift_baseline_n=3,
     )
+    if spec.reference is not None:
+        if spec.reference.theta_from == "trial":
+            raise InvalidInput(
+                "reference.theta_from: a new experiment has no trials to choose from; start "
+                "with the incumbent, or choose a trial later (PUT /api/experiments/{id}/reference)"
+            )
+        apply_reference(session, exp, spec.reference, actor=actor)
     try:  # refuse settings the optimiser would refuse later, now, with its message
         build_optimizer(optimizer_spec(exp))
     except (OptimError, ValueError, TypeError) as exc:
@@ -191,7 +215,12 @@ def create_experiment(
         entity_id=exp.id,
         experiment_id=exp.id,
         after="active",
-        detail={"name": exp.name, "task": exp.task, "target": exp.target},
+        detail={
+            "name": exp.name,
+            "task": exp.task,
+            "target": exp.target,
+            **({"reference_every": exp.reference_every} if exp.reference_every else {}),
+        },
     )
     session.flush()
     return exp
@@ -260,6 +289,18 @@ def _stats(session: Session, ids: list[int]) -> tuple[dict[int, dict[str, int]],
     ).all()
     for eid, n in awaiting:
         counts[eid]["awaiting_measurement"] = n
+    # reference trials (drift checks) that are not abandoned: outside the budget
+    references = session.execute(
+        select(Trial.experiment_id, func.count())
+        .where(
+            Trial.experiment_id.in_(ids),
+            Trial.source == REFERENCE,
+            Trial.status != "abandoned",
+        )
+        .group_by(Trial.experiment_id)
+    ).all()
+    for eid, n in references:
+        counts[eid][REFERENCE_COUNT] = n
     best: dict[int, tuple[int, float, int]] = {}
     rows2 = session.execute(
         select(Trial.experiment_id, Trial.id, Trial.objective, Trial.index)
@@ -296,16 +337,22 @@ def patch_experiment(
     """Change status / notes / budget (audited; ``Database.write`` commits)."""
     exp = get_experiment(session, experiment_id)
     changes = patch.model_dump(exclude_unset=True)
+    if "age_halflife_trials" in changes:
+        check_age_halflife(exp.method, changes["age_halflife_trials"])
     if changes.get("budget") is not None:
         used = session.scalar(
             select(func.count())
             .select_from(Trial)
-            .where(Trial.experiment_id == exp.id, Trial.status != "abandoned")
+            .where(
+                Trial.experiment_id == exp.id,
+                Trial.status != "abandoned",
+                Trial.source != REFERENCE,
+            )
         )
         if changes["budget"] < (used or 0):
             raise InvalidInput(
                 f"budget: {changes['budget']} trials is below the {used} trials this experiment "
-                "already has (abandoned ones not counted)"
+                "already has (abandoned and reference trials not counted)"
             )
     for field, value in changes.items():
         if field in ("status", "notes") and value is None:

@@ -22,6 +22,7 @@ from app.db.models import Experiment, IdempotencyKey, Lease, Measurement, Trial
 from app.service import lifecycle as lc
 from app.service.audit import record
 from app.service.auth import Actor
+from app.service.drift import REFERENCE, check_drift
 from app.service.errors import (
     Conflict,
     DuplicateRequest,
@@ -126,6 +127,7 @@ _TRIAL_TO_MEASURE = (
         Experiment.__table__.c.task,
         Experiment.__table__.c.target,
         _TRIALS.c.index,
+        _TRIALS.c.source,
     )
     .join(Experiment.__table__, Experiment.__table__.c.id == _TRIALS.c.experiment_id)
     .where(_TRIALS.c.id == bindparam("trial_id"))
@@ -134,7 +136,7 @@ _TRIAL_TO_MEASURE = (
 _TrialToMeasure = namedtuple(
     "_TrialToMeasure",
     "id experiment_id status objective objective_unit leased key_seen objective_sources task "
-    "target index",
+    "target index source",
 )
 _COUNTED = ("objective", "objective_sem", "n_measurements", "updated_at")
 _TRIAL_KEY = sa_inspect(Trial).identity_key_from_primary_key
@@ -174,6 +176,8 @@ def _refresh_objective(
             setattr(trial, name, value)
     if state is not None and "measurements" in state.dict:  # a loaded collection is now stale
         session.expire(trial, ["measurements"])
+    if getattr(trial, "source", None) == REFERENCE:  # a drift check's score: judge it
+        check_drift(session, trial.experiment_id, now=now)
     return objective, sem
 
 

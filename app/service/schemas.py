@@ -40,6 +40,11 @@ def sources_list(stored: str | None, task: str, target: str) -> list[str]:
     return default_objective_sources(task, target)
 
 
+#: keys of ``ExperimentRead.build``'s counts that are not statuses: trials awaiting a
+#: measurement, and reference trials not abandoned (outside the budget)
+REFERENCE_COUNT = "reference_trials"
+_NOT_STATUSES = ("awaiting_measurement", REFERENCE_COUNT)
+
 Target = Literal["sim", "hardware"]
 CommandHold = Literal["zero", "linear"]  # app.sim.COMMAND_HOLDS (not imported: it loads MuJoCo)
 ExperimentStatus = Literal["active", "paused", "completed", "archived"]
@@ -86,6 +91,33 @@ class LimitsIn(_In):
     source_pa: float = Field(205_000.0, gt=0, description="supply pressure, Pa")
 
 
+ThetaFrom = Literal["incumbent", "trial"]
+
+
+class ReferenceIn(_In):
+    """A drift check: the reference θ run again every k hardware trials (``every`` = k ≥ 2:
+    k − 1 ordinary trials, then a reference), its scores against a band."""
+
+    every: int = Field(description="k: every k-th hardware trial is a reference (k ≥ 2)")
+    theta_from: ThetaFrom = Field(
+        "incumbent",
+        description="incumbent: the best scored trial so far, frozen when the first reference "
+        "is made; trial: the θ of the trial numbered trial_index",
+    )
+    trial_index: int | None = Field(
+        None, ge=1, le=2**31 - 1, description="the trial's number (theta_from = trial)"
+    )
+    baseline_n: int = Field(
+        3, ge=2, le=100, description="m: the band is drawn from the first m scored references"
+    )
+    tolerance: float | None = Field(
+        None,
+        gt=0,
+        description="the band's half-width in the objective's unit; None: 2 × the baseline's "
+        "spread (the larger of the first m references' std and their measurement SEM)",
+    )
+
+
 class ExperimentCreate(_In):
     """A new experiment. ``levels`` is P, ``horizon`` is H; ``with_release`` defaults to throw."""
 
@@ -120,6 +152,17 @@ class ExperimentCreate(_In):
         description="measurement sources the objective is made of; default: tape (throw, "
         "hammer on hardware), tracker (tip_speed on hardware), sim and tape (sim), and imported",
     )
+    age_halflife_trials: float | None = Field(
+        None,
+        gt=0,
+        le=1_000_000,
+        description="BO only: the GP trusts older data less; an observation this many trials "
+        "old carries extra noise as large as the data's spread, doubling (plus one) every such "
+        "span after (None: all weigh the same)",
+    )
+    reference: ReferenceIn | None = Field(
+        None, description="hardware only: a drift check (a reference θ every k trials)"
+    )
 
 
 class ExperimentPatch(_In):
@@ -128,12 +171,26 @@ class ExperimentPatch(_In):
     status: ExperimentStatus | None = None
     notes: str | None = Field(None, max_length=20_000)
     budget: int | None = Field(None, ge=1, le=1_000_000)
+    age_halflife_trials: float | None = Field(
+        None, gt=0, le=1_000_000, description="BO only; null: all observations weigh the same"
+    )
 
 
 class LimitsRead(BaseModel):
     nominal_pa: list[float]
     max_step_pa: float
     source_pa: float
+
+
+class ReferenceRead(BaseModel):
+    """An experiment's drift-check schedule."""
+
+    every: int
+    theta_from: str
+    trial_id: int | None = Field(description="the trial whose θ the references repeat")
+    theta: list[float] | None = Field(description="None until the incumbent is frozen")
+    baseline_n: int
+    tolerance: float | None
 
 
 class ExperimentRead(BaseModel):
@@ -175,6 +232,10 @@ class ExperimentRead(BaseModel):
     #: trials that count against the budget (all but abandoned), and whether it is reached
     n_budget_used: int = 0
     budget_reached: bool = False
+    age_halflife_trials: float | None = None
+    reference: ReferenceRead | None = None
+    #: reference trials (drift checks; not abandoned): they do not count against the budget
+    n_reference_trials: int = 0
 
     @classmethod
     def build(
@@ -185,7 +246,21 @@ class ExperimentRead(BaseModel):
         best: tuple[int, float] | tuple[int, float, int] | None = None,
     ) -> ExperimentRead:
         counts = status_counts or {}
-        used = sum(v for k, v in counts.items() if k not in ("abandoned", "awaiting_measurement"))
+        n_references = counts.get(REFERENCE_COUNT, 0)
+        used = (
+            sum(v for k, v in counts.items() if k not in ("abandoned", *_NOT_STATUSES))
+            - n_references
+        )
+        reference = None
+        if exp.reference_every is not None:
+            reference = ReferenceRead(
+                every=exp.reference_every,
+                theta_from=exp.reference_theta_from or "incumbent",
+                trial_id=exp.reference_trial_id,
+                theta=exp.reference_theta,
+                baseline_n=exp.drift_baseline_n,
+                tolerance=exp.drift_tolerance,
+            )
         limits = None
         if exp.limits_nominal_pa is not None:
             assert exp.limits_max_step_pa is not None and exp.limits_source_pa is not None
@@ -221,14 +296,17 @@ class ExperimentRead(BaseModel):
             created_by=exp.created_by,
             created_at=exp.created_at,
             updated_at=exp.updated_at,
-            n_trials=sum(v for k, v in counts.items() if k != "awaiting_measurement"),
-            status_counts={k: v for k, v in counts.items() if k != "awaiting_measurement"},
+            n_trials=sum(v for k, v in counts.items() if k not in _NOT_STATUSES),
+            status_counts={k: v for k, v in counts.items() if k not in _NOT_STATUSES},
             best_objective=best[1] if best else None,
             best_trial_id=best[0] if best else None,
             best_trial_index=best[2] if best is not None and len(best) > 2 else None,
             n_awaiting_measurement=counts.get("awaiting_measurement", 0),
             n_budget_used=used,
             budget_reached=exp.budget is not None and used >= exp.budget,
+            age_halflife_trials=exp.age_halflife_trials,
+            reference=reference,
+            n_reference_trials=n_references,
         )
 
 
@@ -464,6 +542,49 @@ class TrialDetail(TrialRead):
             previews=[PreviewRead.model_validate(p) for p in previews or []],
             audit=[AuditRead.model_validate(a) for a in audit],
         )
+
+
+# --- drift checks ----------------------------------------------------------------------------
+class DriftPointRead(BaseModel):
+    """One scored reference trial."""
+
+    trial_id: int
+    index: int
+    objective: float
+    objective_sem: float | None
+    finished_at: datetime | None
+    baseline: bool = Field(description="one of the first m references the band is drawn from")
+    outside: bool = Field(description="beyond the band (never for a baseline point)")
+
+
+class DriftBandRead(BaseModel):
+    """centre ± half_width: where a reference's score is expected while the robot is as it was."""
+
+    center: float
+    half_width: float
+    low: float
+    high: float
+    rule: str = Field(description="how the half-width was found, in words")
+
+
+class DriftRead(BaseModel):
+    """An experiment's drift check: the reference's scores over time and the band."""
+
+    experiment_id: int
+    objective_unit: str
+    reference: ReferenceRead | None
+    reference_trial_index: int | None = Field(description="the number of the θ's source trial")
+    points: list[DriftPointRead]
+    earlier: list[DriftPointRead] = Field(
+        default_factory=list, description="scored references of an earlier reference θ"
+    )
+    band: DriftBandRead | None = Field(description="None until m references are scored")
+    shifted: bool = Field(description="the latest scored reference is beyond the band")
+    warning: str = Field("", description="what the operator is told when shifted")
+    message: str = ""
+    next_reference_in: int | None = Field(
+        description="ordinary hardware trials still to come before the next reference"
+    )
 
 
 # --- model insight ---------------------------------------------------------------------------

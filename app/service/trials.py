@@ -34,6 +34,7 @@ from app.policy import (
 from app.service import lifecycle as lc
 from app.service.audit import record
 from app.service.auth import Actor
+from app.service.drift import REFERENCE, plan_references
 from app.service.errors import (
     ConfirmationMismatch,
     Conflict,
@@ -172,7 +173,11 @@ def _check_can_add(session: Session, exp: Experiment, n: int) -> None:
         used = session.scalar(
             select(func.count())
             .select_from(Trial)
-            .where(Trial.experiment_id == exp.id, Trial.status != lc.ABANDONED)
+            .where(
+                Trial.experiment_id == exp.id,
+                Trial.status != lc.ABANDONED,
+                Trial.source != REFERENCE,  # drift checks are outside the budget
+            )
         )
         if (used or 0) + n > exp.budget:
             raise Conflict(
@@ -466,8 +471,23 @@ def suggest(
                 continue
             _check_can_add(s, exp, n)
             index = _next_index(s, exp)
+            references = plan_references(s, exp, n, actor=actor)
             trials = []
             for i in range(n):
+                if references.before[i]:  # a drift check is due: the reference θ first
+                    trials.append(
+                        _new_trial(
+                            s,
+                            exp,
+                            references.theta,
+                            source=REFERENCE,
+                            actor=actor,
+                            index=index,
+                            note=references.note,
+                            ceilings=ceilings,
+                        )
+                    )
+                    index += 1
                 predicted = None
                 if mean is not None and std is not None and np.isfinite(mean[i]):
                     predicted = (mean[i], std[i])
@@ -478,11 +498,12 @@ def suggest(
                         thetas[i],
                         source="optimizer",
                         actor=actor,
-                        index=index + i,
+                        index=index,
                         predicted=predicted,
                         ceilings=ceilings,
                     )
                 )
+                index += 1
             touch(exp)
             s.flush()
             return [TrialRead.build(t, has_trajectory=False) for t in trials]

@@ -150,7 +150,7 @@ def _add_continuum_joint(
         if i > 0:
             body = body.add_body(name=disk_body_name(j, i), pos=[0.0, 0.0, 2.0 * h])
             for axis, vec in (("x", [1.0, 0.0, 0.0]), ("y", [0.0, 1.0, 0.0])):
-                body.add_joint(
+                hinge = body.add_joint(
                     name=hinge_joint_name(j, axis, i),
                     type=mujoco.mjtJoint.mjJNT_HINGE,
                     axis=vec,
@@ -161,6 +161,8 @@ def _add_continuum_joint(
                     range=[-hinge_limit, hinge_limit],
                     group=3,
                 )
+                if jp.frictionloss_nm > 0.0:  # hinges in series: each carries the torque
+                    hinge.frictionloss = jp.frictionloss_nm
         _set_inertial(body, disk_mass, (0.0, 0.0, 0.0), inertia)
         _geom(
             body,
@@ -546,6 +548,17 @@ def _add_plate(spec: mujoco.MjSpec, params: ArmParams, coll: _Collision) -> None
     )
 
 
+TIP_LOAD_RADIUS_M = 0.03  # the tip load's inertia is a solid sphere's of this radius
+
+
+def _add_tip_load(tip: mujoco.MjsBody, params: ArmParams) -> None:
+    """``params.tip_load_kg`` at the end-effector site: a body with mass and no geom."""
+    h = params.disk_height_m
+    load = tip.add_body(name="tip_load", pos=[0.0, 0.0, params.eef_offset_disk_heights * h])
+    i = 0.4 * params.tip_load_kg * TIP_LOAD_RADIUS_M**2
+    _set_inertial(load, params.tip_load_kg, (0.0, 0.0, 0.0), [i, i, i])
+
+
 def effective_params(preset: str | Preset, params: ArmParams | None) -> ArmParams:
     """The ArmParams a preset actually builds (a preset may fix the disk count and the grasp)."""
     p = get_preset(preset)
@@ -579,6 +592,8 @@ def build_spec(
 
     _add_world(spec, coll)
     tip = _build_arm(spec, params, coll)
+    if params.tip_load_kg > 0.0:
+        _add_tip_load(tip, params)
     if task == "hammer":
         _add_hammer(tip, params, coll)
         _add_plate(spec, params, coll)

@@ -25,6 +25,9 @@ class ContinuumJointParams:
         chamber_diameter_m: diameter of the equivalent cylinder of one chamber (m).
         moment_arm_m: distance from the joint's axis to a chamber's centre (gear, m).
         time_constant_s: first-order time constant of a chamber's pressure (s).
+        frictionloss_nm: dry friction of the joint's bending (N·m); each hinge gets all of it
+            (hinges in series carry the same torque). 0 in the published simulator; the
+            stand-in robot with a reality gap draws some (the real bellows' hysteresis).
     """
 
     disk_radius_m: float
@@ -35,6 +38,7 @@ class ContinuumJointParams:
     chamber_diameter_m: float
     moment_arm_m: float
     time_constant_s: float
+    frictionloss_nm: float = 0.0
 
     @property
     def chamber_area_m2(self) -> float:
@@ -232,6 +236,9 @@ class ArmParams:
         gravity_m_s2: gravity vector (m/s²); set (0, 0, 0) to switch it off.
         eef_offset_disk_heights: end-effector site height above the last disk, in disk heights.
         gripper, cube, hammer, plate: tip loads and scene objects of the tasks.
+        tip_load_kg: an extra point-like mass at the end-effector site in every task (kg);
+            0 in the published simulator (its tip-speed arm is bare); the stand-in robot with
+            a reality gap carries one (the tracker and its mount).
     """
 
     n_disks: int = 10
@@ -247,8 +254,11 @@ class ArmParams:
     cube: CubeParams = field(default_factory=CubeParams)
     hammer: HammerParams = field(default_factory=HammerParams)
     plate: ForcePlateParams = field(default_factory=ForcePlateParams)
+    tip_load_kg: float = 0.0
 
     def __post_init__(self) -> None:
+        if not (math.isfinite(self.tip_load_kg) and self.tip_load_kg >= 0):
+            raise ValueError(f"tip_load_kg must be a finite number ≥ 0, got {self.tip_load_kg!r}")
         if not isinstance(self.n_disks, int) or self.n_disks < 2:
             raise ValueError(f"n_disks must be an integer ≥ 2, got {self.n_disks!r}")
         if len(self.joints) != 3 or len(self.links) != 2:

@@ -153,3 +153,57 @@ def test_executed_theta_rows_are_rewritten_to_the_one_rule_and_back(db, make_exp
     downgrade(url, before)
     assert stored() == [centre[0].tolist(), other.tolist(), planned[2].tolist()]
     upgrade(url)
+
+
+def test_drift_revision_adds_reference_settings_and_downgrades_reference_trials(tmp_path):
+    """Revision drift1: old experiments get no drift check, m = 3 and no age weighting; on
+    the way down a reference trial becomes an operator's θ, and no row is lost."""
+    url = f"sqlite:///{tmp_path / 'm.db'}"
+    upgrade(url, "operator1")
+    path = url.removeprefix("sqlite:///")
+    con = sqlite3.connect(path)
+    now = "2026-01-01 00:00:00"
+    con.execute(
+        "INSERT INTO experiments (id, name, task, target, sim_preset, command_hold, "
+        "objective_unit, levels, horizon, with_release, method, n_initial, seed, "
+        "optimizer_settings, status, notes, version, created_by, created_at, updated_at) "
+        "VALUES (1, 'e', 'tip_speed', 'hardware', 'fast', 'zero', 'm/s', 3, 10, 0, 'random', "
+        f"11, 0, '{{}}', 'active', '', 1, 'olivia', '{now}', '{now}')"
+    )
+    for i in (1, 2):
+        con.execute(
+            'INSERT INTO trials (id, experiment_id, "index", status, status_reason, source, '
+            "note, theta, pressure_schedule_pa, n_measurements, attempts, created_by, "
+            f"created_at, updated_at) VALUES ({i}, 1, {i}, 'completed', '', 'operator', '', "
+            f"'[0.5]', '[[1.0]]', 0, 0, 'olivia', '{now}', '{now}')"
+        )
+    con.commit()
+    con.close()
+    upgrade(url, "drift1")
+    con = sqlite3.connect(path)
+    cols = (
+        "reference_every, reference_theta_from, reference_trial_id, reference_theta, "
+        "drift_baseline_n, drift_tolerance, age_halflife_trials"
+    )
+    assert con.execute(f"SELECT {cols} FROM experiments").fetchall() == [
+        (None, None, None, None, 3, None, None)
+    ]
+    con.execute(
+        "UPDATE experiments SET reference_every = 3, reference_theta_from = 'trial', "
+        "reference_trial_id = 1, reference_theta = '[0.5]', drift_tolerance = 0.1, "
+        "age_halflife_trials = 20.0"
+    )
+    con.execute("UPDATE trials SET source = 'reference' WHERE id = 2")
+    con.commit()
+    con.close()
+    downgrade(url, "operator1")
+    con = sqlite3.connect(path)
+    names = [r[1] for r in con.execute("PRAGMA table_info(experiments)")]
+    assert not {"reference_every", "drift_baseline_n", "age_halflife_trials"} & set(names)
+    assert con.execute("SELECT id, source FROM trials ORDER BY id").fetchall() == [
+        (1, "operator"),
+        (2, "operator"),
+    ]
+    assert con.execute("SELECT COUNT(*) FROM experiments").fetchone() == (1,)
+    con.close()
+    upgrade(url)

@@ -37,6 +37,7 @@ JS_VARIABLES = {
     "experiment": "ExperimentRead",
     "job": "PreviewJobRead",
     "model": "ModelRead",
+    "drift": "DriftRead",
 }
 
 

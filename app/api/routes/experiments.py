@@ -115,6 +115,9 @@ async def suggest(
 ) -> Response:
     """Ask the optimiser (rebuilt from the database) for n new trials.
 
+    A hardware experiment with a drift check gets its due reference trials too, each before
+    the suggestion it precedes (``source = "reference"``): the reply may hold more than n.
+
     The optimiser runs in a compute process within ``HANDFUL_SUGGEST_TIMEOUT_S`` (past it:
     503 ``compute_timeout``, nothing stored) and is stopped if the client leaves. The
     ``Server-Timing`` header gives the optimiser's share (``optimizer``) and the whole

@@ -5,9 +5,13 @@ It runs the MuJoCo simulator (`app.sim.rollout`) and then behaves like the lab's
 * **Tracking** like an HTC Vive tracker: about 90 Hz with timing jitter, millimetre position
   noise, velocity noise, and now and then a dropped sample. The tip-speed objective is computed
   by the worker from this noisy stream, never from the simulator's internal velocity.
+* **A reality gap** (``gap``, 0 = none): the stand-in's own physical parameters are drawn, once
+  per ``instance`` seed, from ranges around the simulator's (``GAP_RANGES``, ``instance_params``),
+  so "hardware" and simulator disagree as a real arm and its model do.
 * **Drift** across trials: a slowly wandering per-chamber pressure bias (the rest pose moves)
-  and a wandering stiffness scale. The drift is seeded and kept in a small JSON state file, so it
-  continues where it left off when the worker restarts.
+  and a wandering stiffness scale, which with ``wear_per_trial`` > 0 also sinks with use
+  (wear). The drift is seeded and kept in a small JSON state file, so it continues where it
+  left off when the worker restarts.
 * **Faults** like the real robot's: an I2C fault becomes likely once the tip goes faster than
   `fault_speed_m_s` (the paper's fast runs broke electronics), and the tracker is lost now and
   then. After a fault the controller vents to nominal and the trial is reported as faulted.
@@ -17,6 +21,25 @@ It runs the MuJoCo simulator (`app.sim.rollout`) and then behaves like the lab's
 
 The driver never learns its own drift: it reports the schedule it was told to run (the
 controller tracks commanded pressures), exactly like the real robot would.
+
+The gap's ranges (at ``gap=1``; ``gap`` scales every half-width linearly, ``gap=0`` gives the
+simulator's parameters exactly, i.e. the stand-in as it was before the gap existed). Which
+facts of ``shared/ROBOT.md`` they rest on, and where they are judgement:
+
+* bending stiffness of each joint ×(1 ± 0.25), damping ×(1 ± 0.30): ROBOT.md gives one lumped
+  k and c per joint (136/27/27 N·m/rad, 7.5/2/2 N·m·s/rad) for bellows of plastic chambers and
+  says the real arm changes with "wear, hysteresis, temperature"; lumped values identified for
+  a simulator are rarely better than a few tens of percent on such an arm (judgement).
+* pressure time constant of each joint ×(1 ± 0.30): ROBOT.md's 0.2/0.5/0.8 s first-order lags
+  stand for valves, tubing and controller; the real controller "tracks each commanded chamber
+  pressure", its lag is not measured (judgement).
+* link masses ×(1 ± 0.10): ROBOT.md's link masses (3.881, 3.474 kg) come with "the links' true
+  shapes are CAD meshes", so they are CAD estimates; cables and fittings add or miss mass.
+* tip load 0 … 0.15 kg: the simulated tip-speed arm is bare (ROBOT.md: "No object"), but the
+  real one carries the HTC Vive tracker the tip is tracked with (ROBOT.md, hardware limits);
+  0.15 kg covers a tracker and its mount (judgement; the tracker's mass is not in ROBOT.md).
+* dry friction of each joint's bending 0 … 0.5 % of its stiffness × 1 rad (0.68 / 0.135 /
+  0.135 N·m): ROBOT.md names hysteresis; the simulator has none (judgement on the size).
 """
 
 from __future__ import annotations
@@ -31,7 +54,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -45,7 +68,76 @@ from app.workers.drivers.base import (
     TrackingSample,
 )
 
+if TYPE_CHECKING:  # the simulator is imported when the stand-in first runs
+    from app.sim import ArmParams
+
 log = logging.getLogger(__name__)
+
+#: relative half-widths at gap = 1 (multiplicative: value × (1 + gap·half·u), u ~ U(−1, 1))
+GAP_RANGES: dict[str, float] = {
+    "stiffness": 0.25,
+    "damping": 0.30,
+    "time_constant": 0.30,
+    "link_mass": 0.10,
+}
+#: absolute ranges at gap = 1 (value = gap·top·u, u ~ U(0, 1))
+GAP_TIP_LOAD_KG = 0.15
+GAP_FRICTION_PER_STIFFNESS = 0.005  # N·m of dry friction per N·m/rad of bending stiffness
+MAX_GAP = 2.0
+
+
+def instance_params(gap: float, instance: int) -> tuple[ArmParams, dict[str, Any]]:
+    """The stand-in robot ``instance``'s own ArmParams for reality gap ``gap`` (0..MAX_GAP), and
+    what was drawn (JSON-safe: per-joint factors, link mass factors, tip load, friction).
+
+    A pure function of (gap, instance): the same instance is the same robot in every process.
+    ``gap=0`` returns the simulator's ``ArmParams()`` exactly. Each draw is one U(−1, 1) (or
+    U(0, 1)) number per parameter from a generator seeded by ``instance`` alone, scaled by
+    ``gap``, so one instance at a larger gap is the same robot further from the simulator."""
+    from app.sim import ArmParams
+
+    base = ArmParams()
+    gap = float(gap)
+    if not (math.isfinite(gap) and 0.0 <= gap <= MAX_GAP):
+        raise DriverError(f"standin gap={gap!r} must lie in [0, {MAX_GAP:g}]")
+    rng = np.random.default_rng([0x9A9, int(instance) & 0xFFFFFFFF])
+    u = {
+        "stiffness": rng.uniform(-1.0, 1.0, 3),
+        "damping": rng.uniform(-1.0, 1.0, 3),
+        "time_constant": rng.uniform(-1.0, 1.0, 3),
+        "link_mass": rng.uniform(-1.0, 1.0, 2),
+        "friction": rng.uniform(0.0, 1.0, 3),
+        "tip_load": rng.uniform(0.0, 1.0),
+    }
+    drawn: dict[str, Any] = {"gap": gap, "instance": int(instance)}
+    if gap == 0.0:
+        return base, {**drawn, "nominal": True}
+    f = {k: 1.0 + gap * GAP_RANGES[k] * np.asarray(u[k]) for k in GAP_RANGES}
+    joints = tuple(
+        dataclasses.replace(
+            j,
+            stiffness_nm_rad=j.stiffness_nm_rad * f["stiffness"][i],
+            damping_nms_rad=j.damping_nms_rad * f["damping"][i],
+            time_constant_s=j.time_constant_s * f["time_constant"][i],
+            frictionloss_nm=gap
+            * GAP_FRICTION_PER_STIFFNESS
+            * j.stiffness_nm_rad
+            * float(u["friction"][i]),
+        )
+        for i, j in enumerate(base.joints)
+    )
+    links = tuple(
+        dataclasses.replace(lk, mass_kg=lk.mass_kg * f["link_mass"][i])
+        for i, lk in enumerate(base.links)
+    )
+    tip_load = gap * GAP_TIP_LOAD_KG * float(u["tip_load"])
+    params = dataclasses.replace(base, joints=joints, links=links, tip_load_kg=tip_load)
+    drawn.update(
+        {k: [round(float(v), 6) for v in f[k]] for k in GAP_RANGES},
+        friction_nm=[round(j.frictionloss_nm, 6) for j in joints],
+        tip_load_kg=round(tip_load, 6),
+    )
+    return params, drawn
 
 
 def _as_bool(value: str | bool) -> bool:
@@ -137,6 +229,10 @@ class StandinDriver:
         fault_speed_m_s: tip speed above which I2C faults become likely, m/s.
         fault_probability: chance of an I2C fault for a run that reaches 1 m/s above that speed.
         tracker_loss_probability: chance per trial that the tracker is lost mid-run.
+        gap: size of the reality gap (0: the simulator's parameters; 1: ``GAP_RANGES``).
+        instance: seeds this robot's physical parameters (default: ``seed``).
+        wear_per_trial: how far the stiffness scale's resting value sinks per trial (0: none;
+            1e-4: 10 % lower after 1000 trials, bounded at 0.85).
     """
 
     name = "standin"
@@ -160,6 +256,9 @@ class StandinDriver:
         fault_probability: str | float = 0.5,
         tracker_loss_probability: str | float = 0.01,
         tape_measure: str | bool = False,
+        gap: str | float = 0.0,
+        instance: str | int | None = None,
+        wear_per_trial: str | float = 0.0,
     ) -> None:
         try:
             self.seed = int(seed)
@@ -181,6 +280,14 @@ class StandinDriver:
         self.tracker_loss_probability = _as_float(
             "tracker_loss_probability", tracker_loss_probability, lo=0.0, hi=1.0
         )
+        self.gap = _as_float("gap", gap, lo=0.0, hi=MAX_GAP)
+        try:
+            self.instance = self.seed if instance in (None, "") else int(instance)  # type: ignore[arg-type]
+        except (TypeError, ValueError):
+            raise DriverError(f"standin option instance={instance!r} is not an integer") from None
+        self.wear_per_trial = _as_float("wear_per_trial", wear_per_trial, lo=0.0, hi=0.01)
+        self._params: Any = None  # this instance's ArmParams, drawn on first use
+        self.gap_draw: dict[str, Any] = {}
         self.state_path = Path(state_file) if state_file else None
         self.state = (
             DriftState.load(self.state_path, self.seed)
@@ -196,7 +303,9 @@ class StandinDriver:
         s = self.state
         rng = np.random.default_rng([s.seed, s.n_trials])
         bias = 0.98 * np.asarray(s.pressure_bias_pa) + rng.normal(0.0, self.bias_step_pa, 12)
-        stiffness = 1.0 + 0.98 * (s.stiffness_scale - 1.0) + rng.normal(0.0, self.stiffness_step)
+        # mean-reverting to 1, or with wear to a resting value that sinks with use
+        rest = max(1.0 - self.wear_per_trial * s.n_trials, 0.85)
+        stiffness = rest + 0.98 * (s.stiffness_scale - rest) + rng.normal(0.0, self.stiffness_step)
         stiffness = float(np.clip(stiffness, 0.85, 1.15))
         s.pressure_bias_pa = [float(v) for v in bias]
         s.stiffness_scale = stiffness
@@ -205,11 +314,15 @@ class StandinDriver:
             s.save(self.state_path)  # before the run: a crash mid-trial still wore the robot
         return bias, stiffness, rng
 
-    def _sim_params(self, stiffness_scale: float) -> Any:
-        """ArmParams with every joint's bending stiffness scaled (or None if nominal)."""
-        from app.sim import ArmParams
+    def instance_params(self) -> ArmParams:
+        """This robot's own ArmParams before drift (``instance_params(gap, instance)``)."""
+        if self._params is None:
+            self._params, self.gap_draw = instance_params(self.gap, self.instance)
+        return self._params
 
-        base = ArmParams()
+    def _sim_params(self, stiffness_scale: float) -> Any:
+        """This instance's ArmParams with every joint's bending stiffness scaled by the drift."""
+        base = self.instance_params()
         joints = tuple(
             dataclasses.replace(j, stiffness_nm_rad=j.stiffness_nm_rad * stiffness_scale)
             for j in base.joints
@@ -313,6 +426,8 @@ class StandinDriver:
                 # A person measures throws/hits by hand: a few percent of scatter.
                 measured = float(res.objective * (1.0 + rng.normal(0.0, 0.02)))
             info["stiffness_scale"] = stiffness
+            if self.gap:
+                info["gap"] = self.gap_draw
             info["pressure_bias_rms_pa"] = float(np.sqrt(np.mean(bias**2)))
             return Execution(
                 executed_pressure_schedule_pa=executed,

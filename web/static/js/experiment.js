@@ -1,7 +1,7 @@
 import { api } from "./api.js";
 import { SIM_MAX_PRESSURE_PA } from "/api-schema.js";
 import { renderTrialActions } from "./actions.js";
-import { bestSoFar, relevance, scheduleHeatmap, slices } from "./plots.js";
+import { bestSoFar, driftChart, relevance, scheduleHeatmap, slices } from "./plots.js";
 import { closeUnlessFor } from "./viz.js";
 import { $, applyRole, badge, canWrite, download, el, fmt, fmtDuration, fmtPm, fmtTime, requireLogin, showError } from "./ui.js";
 
@@ -99,7 +99,7 @@ function renderTable() {
   const tbody = $("#trials-table tbody");
   const rows = trials.slice().sort((a, b) => b.index - a.index).map((t) => el("tr", {
     class: "clickable", dataset: { trialId: t.id, status: t.status }, onclick: () => { location.href = `/trials/${t.id}`; } },
-  el("td", {}, el("a", { href: `/trials/${t.id}` }, t.index)),
+  el("td", {}, el("a", { href: `/trials/${t.id}` }, t.index), t.source === "reference" ? el("span", { class: "small muted", title: "a drift check: the reference θ again" }, " ref") : null),
   el("td", {}, badge(t.status), t.status_reason ? el("div", { class: "small muted" }, t.status_reason) : null),
   el("td", { class: "theta", title: (t.executed_theta || t.theta || []).join(", ") }, (t.executed_theta || t.theta || []).map((v) => v.toFixed(3)).join(", ")),
   el("td", { class: "objective" }, fmtPm(t.objective, t.objective_sem)),
@@ -125,7 +125,8 @@ function renderNext() {
   $("#next-title").textContent = `${active ? "" : "(latest) "}trial ${t.index}`;
   $("#next-meta").replaceChildren(badge(t.status), ` θ = [${(t.theta || []).map((v) => v.toFixed(3)).join(", ")}]`,
     t.release_step ? ` · release after step ${t.release_step}` : "",
-    t.confirmed_by ? ` · confirmed by ${t.confirmed_by} ${fmtTime(t.confirmed_at)}` : "");
+    t.confirmed_by ? ` · confirmed by ${t.confirmed_by} ${fmtTime(t.confirmed_at)}` : "",
+    t.source === "reference" ? " · reference trial (drift check: the reference θ again)" : "");
   $("#next-prediction").replaceChildren(
     t.predicted_mean !== null && t.predicted_mean !== undefined
       ? `GP predicts ${fmtPm(t.predicted_mean, t.predicted_std)} (mean ± std)`
@@ -158,6 +159,72 @@ async function renderModel() {
   }
 }
 
+/** The drift check: the reference's scores and band (DriftRead), the warning, the schedule. */
+async function renderDrift() {
+  const card = $("#drift-card");
+  card.hidden = experiment.target !== "hardware";
+  if (card.hidden) return;
+  try {
+    const drift = await api("GET", `/api/experiments/${experimentId}/drift`);
+    const ref = drift.reference;
+    $("#drift-warning").textContent = drift.shifted ? drift.warning : "";
+    $("#drift-warning").hidden = !drift.shifted;
+    const plotted = (drift.points || []).length + (drift.earlier || []).length;
+    $("#drift-plot").hidden = !plotted;
+    if (plotted) driftChart($("#drift-plot"), drift);
+    $("#drift-status").textContent = [
+      ref ? `Reference: the θ of ${drift.reference_trial_index ? `trial ${drift.reference_trial_index}` : "the incumbent (frozen when the first reference is made)"}${ref.theta_from === "incumbent" && drift.reference_trial_index ? " (the incumbent, frozen)" : ""}, every ${ref.every} hardware trials.` : "",
+      drift.next_reference_in !== null && drift.next_reference_in !== undefined ? (drift.next_reference_in ? `Next reference after ${drift.next_reference_in} more trial${drift.next_reference_in > 1 ? "s" : ""}.` : "The next suggestion brings a reference trial first.") : "",
+      `${(drift.points || []).length} reference${(drift.points || []).length === 1 ? "" : "s"} scored.`,
+      drift.message || "",
+    ].filter(Boolean).join(" ");
+    $("#drift-unit").textContent = experiment.objective_unit;
+    const form = $("#drift-form");
+    if (ref && !form.contains(document.activeElement)) {
+      $("#drift-every").value = ref.every;
+      $("#drift-from").value = ref.theta_from;
+      $("#drift-trial").value = ref.theta_from === "trial" ? (drift.reference_trial_index ?? "") : "";
+      $("#drift-m").value = ref.baseline_n;
+      $("#drift-tolerance").value = ref.tolerance ?? "";
+      $("#drift-trial-label").hidden = ref.theta_from !== "trial";
+    }
+    $("#drift-stop").hidden = !ref;
+  } catch (err) {
+    $("#drift-status").textContent = `Drift check not shown: ${err.message}`;
+  }
+}
+
+function wireDrift() {
+  $("#drift-from").onchange = () => { $("#drift-trial-label").hidden = $("#drift-from").value !== "trial"; };
+  $("#drift-form").onsubmit = async (ev) => {
+    ev.preventDefault();
+    const whole = (text) => (/^\d+$/.test(text.trim()) ? Number(text) : NaN);
+    const body = { every: whole($("#drift-every").value), theta_from: $("#drift-from").value, baseline_n: whole($("#drift-m").value) };
+    if (!Number.isInteger(body.every) || body.every < 2) { showError("#exp-error", `Not scheduled: “${$("#drift-every").value}” is not a whole number of trials of 2 or more (every k-th hardware trial is a reference).`); return; }
+    if (!Number.isInteger(body.baseline_n) || body.baseline_n < 2) { showError("#exp-error", `Not scheduled: the band needs at least 2 references, not “${$("#drift-m").value}”.`); return; }
+    if (body.theta_from === "trial") body.trial_index = whole($("#drift-trial").value);
+    if (body.theta_from === "trial" && !Number.isInteger(body.trial_index)) { showError("#exp-error", "Not scheduled: give the number of the trial whose θ to repeat."); return; }
+    const tol = $("#drift-tolerance").value.trim();
+    if (tol) {
+      body.tolerance = Number(tol);
+      if (!Number.isFinite(body.tolerance) || body.tolerance <= 0) { showError("#exp-error", `Not scheduled: the band's half-width “${tol}” is not a positive number of ${experiment.objective_unit}.`); return; }
+    }
+    try {
+      await api("PUT", `/api/experiments/${experimentId}/reference`, { body });
+      showError("#exp-error", null);
+      say(`Drift check scheduled: a reference every ${body.every} hardware trials.`);
+      await refresh(true);
+    } catch (err) { showError("#exp-error", err); }
+  };
+  $("#drift-stop").onclick = async () => {
+    try {
+      await api("DELETE", `/api/experiments/${experimentId}/reference`);
+      say("Drift check stopped.");
+      await refresh(true);
+    } catch (err) { showError("#exp-error", err); }
+  };
+}
+
 async function renderAudit() {
   if (!$("#audit-box").open) return;
   try {
@@ -188,6 +255,7 @@ async function refresh(force = false) {
     renderNext();
     applyRole();
     renderModel();
+    renderDrift();
     renderAudit();
     showError("#exp-error", null);
   } catch (err) {
@@ -215,6 +283,7 @@ function wireActions() {
   $("#export-csv").onclick = () => download(`/api/experiments/${experimentId}/export?format=csv`, `experiment-${experimentId}.csv`).catch((err) => showError("#exp-error", err));
   $("#export-json").onclick = () => download(`/api/experiments/${experimentId}/export?format=json`, `experiment-${experimentId}.json`).catch((err) => showError("#exp-error", err));
   if (!canWrite()) return;
+  wireDrift();
   $("#suggest-button").onclick = async (ev) => {
     ev.target.disabled = true;
     showError("#exp-error", null);

@@ -82,3 +82,40 @@ export function line(node, x, y, { title, ytitle }) {
   draw(node, [{ type: "scatter", mode: "lines", x, y, line: { color: "#1f5eea" } }],
     { title: { text: title, font: { size: 13 } }, xaxis: { title: { text: "time (s)" } }, yaxis: { title: { text: ytitle } } });
 }
+
+/** The drift check (DriftRead): each scored reference's objective ± SEM by trial number, the
+ * band drawn from the first m (shaded, centre dashed), points beyond it in red, references of
+ * an earlier reference θ in grey. */
+export function driftChart(node, drift) {
+  const pts = drift.points || [];
+  const earlier = drift.earlier || [];
+  const unit = drift.objective_unit || "";
+  const colour = (p) => (p.outside ? "#c92a2a" : p.baseline ? "#748ffc" : "#1f5eea");
+  const data = [];
+  if (earlier.length) {
+    data.push({ type: "scatter", mode: "markers", name: "earlier reference θ", x: earlier.map((p) => p.index), y: earlier.map((p) => p.objective),
+      marker: { size: 7, color: "#adb5bd", symbol: "circle-open" }, hovertemplate: `trial %{x}: %{y:.4g} ${unit}<extra>earlier θ</extra>` });
+  }
+  data.push({ type: "scatter", mode: "lines+markers", name: "reference (± SEM)", x: pts.map((p) => p.index), y: pts.map((p) => p.objective),
+    error_y: { type: "data", array: pts.map((p) => p.objective_sem ?? 0), visible: true },
+    text: pts.map((p) => `${p.baseline ? "baseline" : p.outside ? "beyond the band" : "in band"}${p.finished_at ? `, ${new Date(p.finished_at).toLocaleString()}` : ""}`),
+    marker: { size: 9, color: pts.map(colour) }, line: { color: "#1f5eea", width: 1 },
+    hovertemplate: `trial %{x}: %{y:.4g} ${unit} (%{text})<extra></extra>` });
+  const shapes = [];
+  const b = drift.band;
+  if (b) {
+    shapes.push({ type: "rect", xref: "paper", x0: 0, x1: 1, y0: b.low, y1: b.high, fillcolor: "#1f5eea", opacity: 0.1, line: { width: 0 }, layer: "below" });
+    shapes.push({ type: "line", xref: "paper", x0: 0, x1: 1, y0: b.center, y1: b.center, line: { color: "#1f5eea", width: 1, dash: "dash" } });
+  }
+  const ys = [...pts, ...earlier].flatMap((p) => [p.objective - (p.objective_sem ?? 0), p.objective + (p.objective_sem ?? 0)]);
+  if (b) ys.push(b.low, b.high);
+  const pad = ys.length ? Math.max((Math.max(...ys) - Math.min(...ys)) * 0.12, 1e-6) : 0;
+  draw(node, data, {
+    title: { text: b ? `band ${b.center.toPrecision(4)} ± ${b.half_width.toPrecision(3)} ${unit}: ${b.rule}` : "the band forms once the first references are scored", font: { size: 12 } },
+    xaxis: { title: { text: "trial number (the robot's use)" }, dtick: pts.length + earlier.length < 15 ? 1 : undefined },
+    yaxis: { title: { text: `objective (${unit})` }, range: ys.length ? [Math.min(...ys) - pad, Math.max(...ys) + pad] : undefined },
+    showlegend: earlier.length > 0, legend: { orientation: "h", y: 1.15 }, shapes,
+    annotations: pts.length || earlier.length ? [] : [{ text: "no reference scored yet", showarrow: false, xref: "paper", yref: "paper", x: 0.5, y: 0.5 }],
+  });
+  return pts.length;
+}
