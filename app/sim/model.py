@@ -390,10 +390,14 @@ def _add_fingers(palm: mujoco.MjsBody, params: ArmParams, coll: _Collision) -> N
             damping=0.1,
         )
         _set_inertial(finger, finger_mass, (0.0, 0.0, gp.finger_com_m), [1e-5, 1e-5, 1e-6])
-        # the finger's collision box: outside its pads, from the palm to the fingertip
+        # the finger's collision box: outside its pads, from the palm to the fingertip; on a
+        # massless child body, so the pads' touch sensors (which count their own body's
+        # contacts) never read its floor contacts as the grip
         tip_len = gp.finger_tip_m - gp.palm_length_m
+        frame = finger.add_body(name=f"{side}_finger_frame")
+        _set_inertial(frame, 0.0, (0.0, 0.0, 0.0), [0.0, 0.0, 0.0])
         _geom(
-            finger,
+            frame,
             f"{side}_finger",
             mujoco.mjtGeom.mjGEOM_BOX,
             [0.008, 0.012, tip_len / 2.0],
