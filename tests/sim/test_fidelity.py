@@ -152,12 +152,12 @@ def test_reference_preset_matches_the_published_simulator(mode: str) -> None:
     held = [r for r in throw if not r.lost and not r.case["cube_lost_before_release"]]
     assert len(held) >= 0.5 * len(throw)
     assert share([abs(r.max_rel) <= 0.03 for r in held]) == 1.0
-    # the issue's 0.95 holds on every held throw with held commands (0.98 and above since the
-    # fingers hit the floor as the published ones do) and on 5 of 6 ramped (case 5: 0.939, the
+    # the issue's 0.95 holds on every held throw with held commands (0.978 and above since the
+    # fingers hit the floor as the published ones do) and on 5 of 6 ramped (case 5: 0.941, the
     # gripper strikes the floor at 2.78 s and the two simulators' cubes come to rest
-    # differently); J within 5 % on all but zoh case 3 (−21 %: its step-3 end falls 16 ms into
+    # differently); J within 5 % on all but zoh case 3 (−22 %: its step-3 end falls 16 ms into
     # the held cube's impact on the floor, where the speed drops 0.7 m/s per 10 ms):
-    # docs/bench/paper.md
+    # docs/bench/paper.md (a′)
     assert share([r.corr >= 0.95 for r in held]) >= (1.0 if mode == "zoh" else 0.8)
     assert min(r.corr for r in held) >= 0.93
     assert share([abs(r.j_rel) <= 0.05 for r in held]) >= 0.85
