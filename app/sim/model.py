@@ -114,6 +114,11 @@ class _Collision:
         self.world = (1, 2)  # floor and plate: touch arm and objects
         self.obj = (3, 3)
         self.none = (0, 0)
+        # the friction grasp's fingers touch the world (floor, base, plate) and the cube, never
+        # the arm: the published gripper's fingers hit the floor when a swing brings the tip
+        # down; its pads touch only the cube (bit 4), so their touch sensors mean the grip
+        self.finger = (2, 0)
+        self.pad = (4, 0)
 
 
 def _geom(
@@ -358,19 +363,19 @@ def _add_gripper(tip: mujoco.MjsBody, params: ArmParams, coll: _Collision) -> mu
                 pos=[x, 0.0, gp.palm_length_m + finger_len / 2.0],
             )
         return body
-    _add_fingers(body, params, finger_len)
+    _add_fingers(body, params, coll)
     return body
 
 
 PAD_HALF = (0.004, 0.011, 0.009375)  # a pad box's half sizes: thickness, width, length (m)
 
 
-def _add_fingers(palm: mujoco.MjsBody, params: ArmParams, finger_len: float) -> None:
+def _add_fingers(palm: mujoco.MjsBody, params: ArmParams, coll: _Collision) -> None:
     gp, cp = params.gripper, params.cube
     finger_mass = gp.finger_mass_kg / 2.0
-    # the pads' faces start pad_gap_m from the cube's faces; pad 1 (outer) is centred on the
-    # cube's body origin, pad 2 lies next to it towards the palm
-    origin_z = cp.hold_offset_m - cp.origin_offset_m
+    # the pads' faces start pad_gap_m from the cube's faces; pad 1 (outer) is centred
+    # ``pad_z_m`` beyond the site, pad 2 lies next to it towards the palm
+    origin_z = gp.pad_z_m
     pad_x = cp.side_m / 2.0 + gp.pad_gap_m + PAD_HALF[0]
     # armature so that force / (mass + armature) covers the gap in close_time_s
     eff_mass = gp.pad_force_n * gp.close_time_s**2 / (2.0 * gp.pad_gap_m)
@@ -387,14 +392,20 @@ def _add_fingers(palm: mujoco.MjsBody, params: ArmParams, finger_len: float) -> 
             damping=0.1,
         )
         _set_inertial(finger, finger_mass, (0.0, 0.0, gp.finger_com_m), [1e-5, 1e-5, 1e-6])
+        # the finger's collision box: outside its pads, from the palm to the fingertip; on a
+        # massless child body, so the pads' touch sensors (which count their own body's
+        # contacts) never read its floor contacts as the grip
+        tip_len = gp.finger_tip_m - gp.palm_length_m
+        frame = finger.add_body(name=f"{side}_finger_frame")
+        _set_inertial(frame, 0.0, (0.0, 0.0, 0.0), [0.0, 0.0, 0.0])
         _geom(
-            finger,
+            frame,
             f"{side}_finger",
             mujoco.mjtGeom.mjGEOM_BOX,
-            [0.008, 0.012, finger_len / 2.0],
+            [0.008, 0.012, tip_len / 2.0],
             (0.3, 0.3, 0.3, 1.0),
-            (0, 0),
-            pos=[sign * 0.012, 0.0, gp.palm_length_m + finger_len / 2.0],
+            coll.finger,
+            pos=[sign * 0.012, 0.0, gp.palm_length_m + tip_len / 2.0],
         )
         # pad k lies k pad lengths nearer the palm than pad 1
         for k, mu in enumerate(gp.pad_friction):
@@ -405,7 +416,7 @@ def _add_fingers(palm: mujoco.MjsBody, params: ArmParams, finger_len: float) -> 
                 mujoco.mjtGeom.mjGEOM_BOX,
                 list(PAD_HALF),
                 (0.55, 0.55, 0.55, 1.0),
-                (4, 0),  # touches only the cube
+                coll.pad,
                 pos=[0.0, 0.0, z],
             )
             pad.friction = [mu, 0.005, 0.0001]

@@ -87,6 +87,14 @@ class GripperParams:
     be lost before.
 
     Attributes:
+        finger_tip_m: friction grasp: how far beyond the site the fingers' collision boxes
+            reach (m). They hit the floor (and the cube), as the published fingers do, whose
+            closed pads end 0.17 m beyond the site; without them a swing that brings the tip
+            down passed the fingers through the floor (docs/bench/paper.md). Their mass stays
+            at ``finger_com_m``.
+        pad_z_m: friction grasp: the outer pad's centre beyond the site (m): where the
+            published pad sits once closed on the cube (0.1615 m, next to the cube's centre at
+            0.162 m; it moves 1 cm outwards as its linkage closes).
         pad_force_n: each finger's force limit (N), + closing, − opening: the pad's normal
             force on a held cube. The published gripper limits its actuator to ±5 N on a
             linkage whose ratio to the pads is not published; 120 N was chosen by measurement
@@ -114,6 +122,8 @@ class GripperParams:
     finger_mass_kg: float = 0.12
     finger_com_m: float = 0.11
     finger_separation_m: float = 0.06
+    finger_tip_m: float = 0.17
+    pad_z_m: float = 0.1615
     grasp: str = "friction"
     pad_force_n: float = 120.0
     pad_friction: tuple[float, ...] = (0.7,)

@@ -126,6 +126,30 @@ def test_task_loads() -> None:
         GripperParams(grasp="glue")
 
 
+def test_friction_fingers_hit_the_floor_and_the_pads_touch_only_the_cube() -> None:
+    throw = build_model("throw")
+
+    def collides(a: int, b: int) -> bool:
+        ga, gb = throw.geom_contype, throw.geom_conaffinity
+        return bool(ga[a] & gb[b] or ga[b] & gb[a])
+
+    floor, cube = throw.geom("floor").id, throw.geom("cube").id
+    arm = [g for g in range(throw.ngeom) if throw.geom(g).name.startswith(("j", "link"))]
+    data = mujoco.MjData(throw)
+    mujoco.mj_forward(throw, data)
+    tip = data.site_xpos[throw.site(EEF_SITE).id]
+    axis = data.site_xmat[throw.site(EEF_SITE).id].reshape(3, 3)[:, 2]
+    for side in ("left", "right"):
+        finger, pad = throw.geom(f"{side}_finger").id, throw.geom(f"{side}_pad1").id
+        assert collides(finger, floor) and collides(finger, cube)
+        assert not any(collides(finger, g) for g in arm)
+        assert collides(pad, cube) and not collides(pad, floor)  # its touch sensor = the grip
+        # the fingers reach 0.17 m beyond the site, the outer pad centred 0.1615 m beyond it
+        far = (data.geom_xpos[finger] - tip) @ axis + throw.geom_size[finger][2]
+        assert far == pytest.approx(0.17, abs=1e-9)
+        assert (data.geom_xpos[pad] - tip) @ axis == pytest.approx(0.1615, abs=1e-9)
+
+
 def test_gravity_and_reference_options() -> None:
     m = build_model("hammer", "reference")
     assert m.opt.timestep == 1e-3 and m.opt.iterations == 50 and m.opt.tolerance == 1e-10
