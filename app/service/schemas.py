@@ -14,7 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, computed_fiel
 
 from app.db.models import AuditLog, Experiment, Trial
 from app.optim.methods import DEFAULT_METHOD
-from app.policy import N_CHAMBERS, TaskName, policy_dim, schedule_hash
+from app.policy import N_CHAMBERS, CommandHold, TaskName, policy_dim, schedule_hash
 
 DEFAULT_SOURCES = {"tip_speed": "tracker", "throw": "tape", "hammer": "tape"}
 
@@ -41,7 +41,6 @@ def sources_list(stored: str | None, task: str, target: str) -> list[str]:
 
 
 Target = Literal["sim", "hardware"]
-CommandHold = Literal["zero", "linear"]  # app.sim.COMMAND_HOLDS (not imported: it loads MuJoCo)
 ExperimentStatus = Literal["active", "paused", "completed", "archived"]
 Acquisition = Literal["logei", "ucb", "qlognei"]
 Unit = Literal["m", "m/s", "N", "score"]
