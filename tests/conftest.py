@@ -40,7 +40,6 @@ from app.db.migrate import upgrade
 from app.db.models import Trial
 from app.db.session import Database
 from app.devserver import ServerProcess, free_port
-from app.policy import policy_dim
 from app.service import experiments, trials
 from app.service.auth import Actor, add_user, create_token
 from app.service.schemas import ExperimentCreate
@@ -277,8 +276,7 @@ def make_trial(db: Database) -> Callable[..., int]:
     def factory(experiment_id: int, status: str | None = None, theta: Any = None) -> int:
         with db.write() as s:
             exp = experiments.get_experiment(s, experiment_id)
-            dim = policy_dim(exp.horizon, exp.with_release)
-            t = trials.attach(s, experiment_id, theta or [0.5] * dim, note="", actor=OPERATOR)
+            t = trials.attach(s, experiment_id, theta or [0.5] * exp.dim, note="", actor=OPERATOR)
         if status is not None:
             with db.write() as s:
                 row = s.get(Trial, t.id)

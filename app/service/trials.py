@@ -44,7 +44,6 @@ from app.service.errors import (
 )
 from app.service.experiments import (
     get_experiment,
-    limits_of,
     optimizer_spec,
     policy_of,
     touch,
@@ -126,7 +125,7 @@ def check_ceilings(
     if exp.target != "hardware":
         return
     ceilings = ceilings or DEFAULT_CEILINGS
-    limits = limits_of(exp)
+    limits = exp.limits
     if limits is None:
         raise SafetyViolation("hardware experiment carries no pressure limits")
     try:
