@@ -43,6 +43,23 @@ def _fail(message: str) -> None:
     raise typer.Exit(2)
 
 
+# The options `handful bench optim` and `handful bench paper` share (one declaration each).
+PRESET = typer.Option(
+    None, "--preset", help="simulator preset: reference, fast (default: the paper-matching)"
+)
+COMMAND_HOLD = typer.Option(
+    None,
+    "--command-hold",
+    help="zero (each row held) or linear (ramped over each step); default: paper-matching",
+)
+OBJECTIVE = typer.Option(
+    None, "--objective", help="scoring rule: paper or published; default: paper-matching"
+)
+BACKEND = typer.Option("local", "--backend", help="local (process pool) or ray")
+ADDRESS = typer.Option(None, "--address", help="Ray cluster address (with --backend ray)")
+WORKERS = typer.Option(0, "--workers", help="parallel runs (default: all cores)")
+
+
 def sim_settings(
     preset: str | None, command_hold: str | None, objective: str | None
 ) -> tuple[str, str, str]:
@@ -72,21 +89,13 @@ def optim(
     ),
     seeds: int = typer.Option(3, "--seeds", help="number of seeds (0 .. N-1)"),
     methods: list[str] = typer.Option(None, "--methods", help="methods (default: all)"),
-    preset: str = typer.Option(
-        None, "--preset", help="simulator preset: reference, fast (default: the paper-matching)"
-    ),
-    command_hold: str = typer.Option(
-        None,
-        "--command-hold",
-        help="zero (each row held) or linear (ramped over each step); default: paper-matching",
-    ),
-    objective: str = typer.Option(
-        None, "--objective", help="scoring rule: paper or published; default: paper-matching"
-    ),
+    preset: str = PRESET,
+    command_hold: str = COMMAND_HOLD,
+    objective: str = OBJECTIVE,
     out: Path = typer.Option(Path("bench_out/optim"), "--out", help="output (and cache) folder"),
-    backend: str = typer.Option("local", "--backend", help="local (process pool) or ray"),
-    address: str = typer.Option(None, "--address", help="Ray cluster address (with --backend ray)"),
-    workers: int = typer.Option(0, "--workers", help="parallel runs (default: all cores)"),
+    backend: str = BACKEND,
+    address: str = ADDRESS,
+    workers: int = WORKERS,
     progress: bool = typer.Option(True, "--progress/--no-progress", help="show progress bars"),
     redq: list[str] = typer.Option(
         None,

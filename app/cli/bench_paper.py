@@ -10,7 +10,16 @@ from pathlib import Path
 
 import typer
 
-from app.cli.bench_optim import _fail, sim_settings
+from app.cli.bench_optim import (
+    ADDRESS,
+    BACKEND,
+    COMMAND_HOLD,
+    OBJECTIVE,
+    PRESET,
+    WORKERS,
+    _fail,
+    sim_settings,
+)
 
 
 def paper(
@@ -32,20 +41,12 @@ def paper(
         help="BO's GP fits: warm (from the last full fit's hyperparameters, a full refit every "
         "10 trials or 10 %% of N) or full (the paper: from scratch after every trial)",
     ),
-    preset: str = typer.Option(
-        None, "--preset", help="simulator preset: reference, fast (default: the paper-matching)"
-    ),
-    command_hold: str = typer.Option(
-        None,
-        "--command-hold",
-        help="zero (each row held) or linear (ramped over each step); default: paper-matching",
-    ),
-    objective: str = typer.Option(
-        None, "--objective", help="scoring rule: paper or published; default: paper-matching"
-    ),
-    backend: str = typer.Option("local", "--backend", help="local (process pool) or ray"),
-    address: str = typer.Option(None, "--address", help="Ray cluster address (with --backend ray)"),
-    workers: int = typer.Option(0, "--workers", help="parallel runs (default: all cores)"),
+    preset: str = PRESET,
+    command_hold: str = COMMAND_HOLD,
+    objective: str = OBJECTIVE,
+    backend: str = BACKEND,
+    address: str = ADDRESS,
+    workers: int = WORKERS,
     progress: bool = typer.Option(True, "--progress/--no-progress", help="progress bars and ETA"),
     cached_only: bool = typer.Option(
         False, "--cached-only", help="run nothing: write paper.md from the runs stored in DIR"
