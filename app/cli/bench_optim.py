@@ -60,6 +60,17 @@ ADDRESS = typer.Option(None, "--address", help="Ray cluster address (with --back
 WORKERS = typer.Option(0, "--workers", help="parallel runs (default: all cores)")
 
 
+def check_execution(backend: str, address: str | None, workers: int) -> None:
+    """``--backend``, ``--address`` and ``--workers`` make sense together; one clear line and
+    exit 2 otherwise."""
+    if backend not in ("local", "ray"):
+        _fail(f"--backend must be local or ray, got {backend!r}")
+    if address and backend != "ray":
+        _fail("--address needs --backend ray")
+    if workers < 0:
+        _fail(f"--workers must be ≥ 0, got {workers}")
+
+
 def sim_settings(
     preset: str | None, command_hold: str | None, objective: str | None
 ) -> tuple[str, str, str]:
@@ -125,12 +136,7 @@ def optim(
     ps = _ints("levels", _split(levels, ["2"]))
     budgets = sorted(set(_ints("budget", _split(budget, ["100"]))))
     chosen = _split(methods, list(METHODS))
-    if backend not in ("local", "ray"):
-        _fail(f"--backend must be local or ray, got {backend!r}")
-    if address and backend != "ray":
-        _fail("--address needs --backend ray")
-    if workers < 0:
-        _fail(f"--workers must be ≥ 0, got {workers}")
+    check_execution(backend, address, workers)
     try:
         from app.sim import PRESETS
     except ImportError as exc:  # pragma: no cover - the simulator ships with handful

@@ -18,6 +18,7 @@ from app.cli.bench_optim import (
     PRESET,
     WORKERS,
     _fail,
+    check_execution,
     sim_settings,
 )
 
@@ -70,12 +71,7 @@ def paper(
     preset, command_hold, objective = sim_settings(preset, command_hold, objective)
     if bo_fit not in ("warm", "full"):
         _fail(f"--bo-fit must be warm or full, got {bo_fit!r}")
-    if backend not in ("local", "ray"):
-        _fail(f"--backend must be local or ray, got {backend!r}")
-    if address and backend != "ray":
-        _fail("--address needs --backend ray")
-    if workers < 0:
-        _fail(f"--workers must be ≥ 0, got {workers}")
+    check_execution(backend, address, workers)
     from app.sim import PRESETS
 
     if preset not in PRESETS:
