@@ -346,18 +346,30 @@ def _add_gripper(tip: mujoco.MjsBody, params: ArmParams, coll: _Collision) -> mu
     if gp.grasp == "weld":
         half_sep = gp.finger_separation_m / 2.0
         for side, x in (("left", -half_sep), ("right", half_sep)):
-            _geom(
-                body,
-                f"{side}_finger",
-                mujoco.mjtGeom.mjGEOM_BOX,
-                [0.008, 0.012, finger_len / 2.0],
-                (0.3, 0.3, 0.3, 1.0),
-                coll.none,
-                pos=[x, 0.0, gp.palm_length_m + finger_len / 2.0],
-            )
+            _finger_geom(body, side, x, gp.palm_length_m, finger_len, coll.none)
         return body
     _add_fingers(body, params, finger_len)
     return body
+
+
+def _finger_geom(
+    body: mujoco.MjsBody,
+    side: str,
+    x: float,
+    palm_length_m: float,
+    finger_len: float,
+    coll: tuple[int, int],
+) -> None:
+    """A finger's box (the same for either grasp) at ``x``, from the palm's end outwards."""
+    _geom(
+        body,
+        f"{side}_finger",
+        mujoco.mjtGeom.mjGEOM_BOX,
+        [0.008, 0.012, finger_len / 2.0],
+        (0.3, 0.3, 0.3, 1.0),
+        coll,
+        pos=[x, 0.0, palm_length_m + finger_len / 2.0],
+    )
 
 
 PAD_HALF = (0.004, 0.011, 0.009375)  # a pad box's half sizes: thickness, width, length (m)
@@ -385,15 +397,7 @@ def _add_fingers(palm: mujoco.MjsBody, params: ArmParams, finger_len: float) -> 
             damping=0.1,
         )
         _set_inertial(finger, finger_mass, (0.0, 0.0, gp.finger_com_m), [1e-5, 1e-5, 1e-6])
-        _geom(
-            finger,
-            f"{side}_finger",
-            mujoco.mjtGeom.mjGEOM_BOX,
-            [0.008, 0.012, finger_len / 2.0],
-            (0.3, 0.3, 0.3, 1.0),
-            (0, 0),
-            pos=[sign * 0.012, 0.0, gp.palm_length_m + finger_len / 2.0],
-        )
+        _finger_geom(finger, side, sign * 0.012, gp.palm_length_m, finger_len, (0, 0))
         # pad k lies k pad lengths nearer the palm than pad 1
         for k, mu in enumerate(gp.pad_friction):
             z = origin_z - 2.0 * k * PAD_HALF[2]
