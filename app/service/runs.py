@@ -37,6 +37,22 @@ from app.service.trials import check_schedule_safe, get_trial, lock_for
 log = logging.getLogger("handful.runs")
 
 
+def simulate(what: ServiceRun | PreviewJob) -> Any:
+    """The one simulation of a trial's schedule, for a run in the service and for a preview
+    alike (so a preview shows what a run does): the experiment's task, preset and command hold,
+    the arm's pose recorded for the 3D replay. Returns the ``app.sim.RolloutResult``."""
+    from app.sim import rollout
+
+    return rollout(
+        what.task,
+        what.schedule,
+        release_step=what.release_step,
+        preset=what.preset,
+        record_qpos=True,
+        command_hold=what.command_hold,
+    )
+
+
 def _trajectory_npz_bytes(result: Any) -> bytes:
     import tempfile
 
@@ -205,7 +221,7 @@ def run_trial(
     the simulation diverges or the simulator raises. If the trial was aborted meanwhile the
     result is dropped; if this process dies, the lease sweep fails the trial.
     """
-    from app.sim import SimulationDiverged, rollout
+    from app.sim import SimulationDiverged
 
     with db.write() as s:
         run = start_run(s, trial_id, actor=actor, lease_seconds=lease_seconds)
@@ -225,14 +241,7 @@ def run_trial(
     error = None
     result = None
     try:
-        result = rollout(
-            run.task,
-            run.schedule,
-            release_step=run.release_step,
-            preset=run.preset,
-            record_qpos=True,
-            command_hold=run.command_hold,
-        )
+        result = simulate(run)
     except SimulationDiverged as exc:
         error = f"simulation diverged: {exc}"
     except Exception as exc:  # whatever went wrong, the trial must not stay running
@@ -360,18 +369,11 @@ class PreviewRunner:
         return job.read(with_trajectory=False)
 
     def _run(self, job: PreviewJob) -> None:
-        from app.sim import SimulationDiverged, rollout
+        from app.sim import SimulationDiverged
 
         job.status, job.progress = "running", 0.1
         try:
-            res = rollout(
-                job.task,
-                job.schedule,
-                release_step=job.release_step,
-                preset=job.preset,
-                record_qpos=True,
-                command_hold=job.command_hold,
-            )
+            res = simulate(job)
             job.progress = 0.9
             raw = _trajectory_npz_bytes(res)
             job.result = {
