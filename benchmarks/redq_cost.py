@@ -20,7 +20,7 @@ import time
 import numpy as np
 import torch
 
-from app.bench.specs import PAPER_COMMAND_HOLD, PAPER_OBJECTIVE_RULE, PAPER_PRESET
+from app.policy import PAPER_COMMAND_HOLD, PAPER_OBJECTIVE_RULE, PAPER_PRESET
 from app.rl.env import HandfulEnv
 from app.rl.redq import REDQAgent
 from app.rl.settings import REDQSettings

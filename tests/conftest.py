@@ -20,7 +20,10 @@ Fixtures (reuse them; they are documented for the workers and dashboard tests):
 - ``api`` / ``viewer_api`` / ``worker_api`` / ``anon_api``: ``HandfulClient`` on
   ``live_server`` with the operator / viewer / worker token / no token.
 - ``new_exp(client, **fields)``: an experiment through the API (module defaults: ``NEW_EXP``).
+- ``hw_exp(client, **fields)``: a hardware throw experiment through the API (``HW_THROW``).
+- ``error_of(call, *args, **kwargs)``: the ``HandfulAPIError`` a client call raises.
 - ``db``, ``make_experiment``, ``make_trial``: the service layer over a migrated SQLite file.
+- ``sweep_both_ways(specs, workers)``: a sweep run on the local backend and on a local Ray.
 - ``dashboard_server``, ``browser``, ``page``, ``screenshots``: the dashboard and Chromium.
 """
 
@@ -35,17 +38,30 @@ from typing import Any
 
 import pytest
 
-from app.client import HandfulClient
+from app.client import HandfulAPIError, HandfulClient
 from app.db.migrate import upgrade
 from app.db.models import Trial
 from app.db.session import Database
 from app.devserver import ServerProcess, free_port
-from app.policy import policy_dim
 from app.service import experiments, trials
 from app.service.auth import Actor, add_user, create_token
 from app.service.schemas import ExperimentCreate
 
 ROLES = ("operator", "viewer", "worker")
+#: the tests' hardware limits: 100 kPa nominal ± 30 kPa, 205 kPa supply
+HARDWARE_LIMITS = {"nominal_pa": 100_000.0, "max_step_pa": 30_000.0, "source_pa": 205_000.0}
+#: ``hw_exp``'s experiment: a hardware throw scored in metres (the tape), P = 3, two random
+#: initial trials, the fast simulator preset for its previews
+HW_THROW = {
+    "name": "hw",
+    "task": "throw",
+    "target": "hardware",
+    "levels": 3,
+    "n_initial": 2,
+    "sim_preset": "fast",
+    "objective_unit": "m",
+    "limits": HARDWARE_LIMITS,
+}
 OPERATOR = Actor("olivia", "operator")  # the actor the service-level factories act as
 PASSWORD = "correct horse battery"  # every fixture user's password
 
@@ -234,18 +250,41 @@ def new_exp(request: pytest.FixtureRequest) -> Callable[..., dict]:
     """``new_exp(client, **fields)``: create an experiment through the API and return it: a
     sim tip_speed experiment with P = 3 and random search, named "exp", updated by the test
     module's ``NEW_EXP`` dict (e.g. ``{"sim_preset": "fast"}``), then by ``fields``. A
-    hardware experiment without limits gets the module's ``HARDWARE_LIMITS`` if it has them."""
+    hardware experiment without limits gets ``HARDWARE_LIMITS``."""
     module_defaults = getattr(request.module, "NEW_EXP", {})
-    hardware_limits = getattr(request.module, "HARDWARE_LIMITS", None)
 
     def make(client: HandfulClient, **fields: object) -> dict:
         spec = {"name": "exp", "task": "tip_speed", "levels": 3, "method": "random"}
         spec = {**spec, **module_defaults, **fields}
-        if spec.get("target") == "hardware" and hardware_limits is not None:
-            spec.setdefault("limits", hardware_limits)
+        if spec.get("target") == "hardware":
+            spec.setdefault("limits", HARDWARE_LIMITS)
         return client.create_experiment(**spec)
 
     return make
+
+
+@pytest.fixture
+def hw_exp() -> Callable[..., dict]:
+    """``hw_exp(client, **fields)``: create ``HW_THROW`` updated by ``fields`` through the
+    API and return it."""
+
+    def make(client: HandfulClient, **fields: object) -> dict:
+        return client.create_experiment(**{**HW_THROW, **fields})
+
+    return make
+
+
+@pytest.fixture
+def error_of() -> Callable[..., HandfulAPIError]:
+    """``error_of(call, *args, **kwargs)``: call a client method that must be refused and
+    return its ``HandfulAPIError`` (the test fails if the call succeeds)."""
+
+    def refused(call: Callable[..., Any], *args: Any, **kwargs: Any) -> HandfulAPIError:
+        with pytest.raises(HandfulAPIError) as info:
+            call(*args, **kwargs)
+        return info.value
+
+    return refused
 
 
 @pytest.fixture
@@ -277,8 +316,7 @@ def make_trial(db: Database) -> Callable[..., int]:
     def factory(experiment_id: int, status: str | None = None, theta: Any = None) -> int:
         with db.write() as s:
             exp = experiments.get_experiment(s, experiment_id)
-            dim = policy_dim(exp.horizon, exp.with_release)
-            t = trials.attach(s, experiment_id, theta or [0.5] * dim, note="", actor=OPERATOR)
+            t = trials.attach(s, experiment_id, theta or [0.5] * exp.dim, note="", actor=OPERATOR)
         if status is not None:
             with db.write() as s:
                 row = s.get(Trial, t.id)
@@ -287,6 +325,28 @@ def make_trial(db: Database) -> Callable[..., int]:
         return t.id
 
     return factory
+
+
+@pytest.fixture
+def sweep_both_ways(tmp_path: Path) -> Callable[..., tuple[dict, dict]]:
+    """``sweep_both_ways(specs, workers)``: ``app.bench.run_sweep`` the specs on the local
+    backend (``workers`` processes, into tmp_path/local), then on a local Ray with 2 CPUs
+    (into tmp_path/ray, shut down after); returns (local, ray) rows per spec."""
+
+    def run(specs: list[Any], workers: int) -> tuple[dict, dict]:
+        import ray
+
+        from app import bench
+
+        local = bench.run_sweep(specs, tmp_path / "local", workers=workers, progress=False)
+        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+        try:
+            remote = bench.run_sweep(specs, tmp_path / "ray", backend="ray", progress=False)
+        finally:
+            ray.shutdown()
+        return local, remote
+
+    return run
 
 
 # --- the dashboard and headless Chromium (tests/web, tests/viz) ---------------------------------

@@ -38,11 +38,6 @@ from app.bench.report import (
 )
 from app.bench.runner import objective_fn, run_one, run_rl
 from app.bench.specs import (
-    COMMAND_HOLDS,
-    OBJECTIVE_RULES,
-    PAPER_COMMAND_HOLD,
-    PAPER_OBJECTIVE_RULE,
-    PAPER_PRESET,
     RL_LEVELS,
     SWEEP_METHODS,
     TASKS,
@@ -52,6 +47,13 @@ from app.bench.specs import (
     validate,
 )
 from app.bench.stats import best_at, head_to_head, result_rows
+from app.policy import (
+    COMMAND_HOLDS,
+    OBJECTIVE_RULES,
+    PAPER_COMMAND_HOLD,
+    PAPER_OBJECTIVE_RULE,
+    PAPER_PRESET,
+)
 
 __all__ = [
     "COMMAND_HOLDS",

@@ -8,7 +8,8 @@ from __future__ import annotations
 import csv
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +26,48 @@ from app.bench.cache import (
 )
 from app.bench.specs import HORIZON, RunSpec
 from app.optim import Observation, build_optimizer
+
+
+def _finite_or_worst(value: float, rows: list[dict[str, Any]]) -> float:
+    """A trial's objective as the optimiser observes it: a non-finite one (a diverged
+    episode) counts as the worst seen so far (0 for the first trial)."""
+    if not math.isfinite(value):
+        return min((r["objective"] for r in rows), default=0.0)
+    return value
+
+
+def _trial_row(
+    rows: list[dict[str, Any]], value: float, t0: float, theta: list[float]
+) -> dict[str, Any]:
+    """Append the next trial's row to ``rows`` (its time since ``t0``) and return it."""
+    row = {
+        "trial": len(rows) + 1,
+        "objective": value,
+        "wall_s": time.perf_counter() - t0,
+        "theta": theta,
+    }
+    rows.append(row)
+    return row
+
+
+@contextmanager
+def _part_writer(part: Path | None, *, fresh: bool) -> Iterator[Callable[[dict[str, Any]], None]]:
+    """A function that appends a trial's row to the run's part file and flushes it (a
+    ``fresh`` file gets the header first); without a part file it keeps nothing."""
+    if part is None:
+        yield lambda row: None
+        return
+    with open(part, "w" if fresh else "a", newline="") as fh:
+        writer = csv.writer(fh)
+        if fresh:
+            writer.writerow(RUN_COLUMNS)
+            fh.flush()
+
+        def append(row: dict[str, Any]) -> None:
+            writer.writerow(run_line(row))
+            fh.flush()
+
+        yield append
 
 
 def objective_fn(
@@ -97,35 +140,14 @@ def run_one(
             opt.observe_many(Observation(tuple(r["theta"]), r["objective"]) for r in rows)
             if start == shorter and rows:
                 write_part(part, rows)
-    fh = None
-    try:
-        if part is not None:
-            fresh = not part.exists() or not rows
-            fh = open(part, "w" if fresh else "a", newline="")  # noqa: SIM115
-            writer = csv.writer(fh)
-            if fresh:
-                writer.writerow(RUN_COLUMNS)
-                fh.flush()
+    fresh = part is not None and (not part.exists() or not rows)
+    with _part_writer(part, fresh=fresh) as append:
         while len(rows) < spec.budget:
             t0 = time.perf_counter()
             theta = opt.suggest(1)[0]
-            value = f(theta)
-            if not math.isfinite(value):
-                value = min((r["objective"] for r in rows), default=0.0)
+            value = _finite_or_worst(f(theta), rows)
             opt.observe(theta, value)
-            row = {
-                "trial": len(rows) + 1,
-                "objective": value,
-                "wall_s": time.perf_counter() - t0,
-                "theta": [float(v) for v in theta],
-            }
-            rows.append(row)
-            if fh is not None:
-                writer.writerow(run_line(row))
-                fh.flush()
-    finally:
-        if fh is not None:
-            fh.close()
+            append(_trial_row(rows, value, t0, [float(v) for v in theta]))
     if out is not None:
         write_run(spec, out, rows)
     return rows
@@ -173,32 +195,17 @@ def run_rl(spec: RunSpec, out: Path | None = None) -> list[dict[str, Any]]:
             else:  # a checkpoint ahead of its rows: not ours to trust
                 agent = REDQAgent(env, settings, seed=spec.seed)
         write_part(part, rows)
-    fh = open(part, "a", newline="") if part is not None else None  # noqa: SIM115
-    try:
-        writer = csv.writer(fh) if fh is not None else None
+    with _part_writer(part, fresh=False) as append:
         while len(rows) < spec.budget:
             t0 = time.perf_counter()
             ep = agent.run_episode()
-            value = ep.objective
-            if not math.isfinite(value):
-                value = min((r["objective"] for r in rows), default=0.0)
-            row = {
-                "trial": len(rows) + 1,
-                "objective": value,
-                "wall_s": time.perf_counter() - t0,
-                "theta": [round(float(v), 4) for v in ep.actions.reshape(-1)],
-            }
-            rows.append(row)
-            if writer is not None and fh is not None:
-                writer.writerow(run_line(row))
-                fh.flush()
-                if ckpt is not None and (
-                    len(rows) % settings.checkpoint_every == 0 or len(rows) == spec.budget
-                ):
-                    agent.save(ckpt)
-    finally:
-        if fh is not None:
-            fh.close()
+            actions = [round(float(v), 4) for v in ep.actions.reshape(-1)]
+            value = _finite_or_worst(ep.objective, rows)
+            append(_trial_row(rows, value, t0, actions))
+            if ckpt is not None and (
+                len(rows) % settings.checkpoint_every == 0 or len(rows) == spec.budget
+            ):
+                agent.save(ckpt)
     if out is not None:
         write_run(spec, out, rows)
     return rows

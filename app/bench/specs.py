@@ -10,20 +10,16 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from app.optim import METHODS, OptimizerSpec, SettingsError
-from app.policy import HORIZON, RELEASE_TASKS, TASKS, policy_dim
+from app.policy import (
+    COMMAND_HOLDS,
+    HORIZON,
+    OBJECTIVE_RULES,
+    RELEASE_TASKS,
+    TASKS,
+    policy_dim,
+)
 from app.rl.settings import RL_METHODS, REDQSettings
 
-# app.sim's COMMAND_HOLDS and OBJECTIVE_RULES (not imported: the specs stay free of MuJoCo)
-COMMAND_HOLDS = ("zero", "linear")
-OBJECTIVE_RULES = ("paper", "published")
-
-# The simulator settings that reproduce the paper's tables, chosen by measurement against the
-# published simulator's random-search anchor (docs/bench/paper.md): commands ramped over each
-# step, the published code's scoring, and the fast physics preset (its welded cube matched the
-# anchor's per-θ scores as well as the reference preset's friction grasp, at a tenth the cost).
-PAPER_PRESET = "fast"
-PAPER_COMMAND_HOLD = "linear"
-PAPER_OBJECTIVE_RULE = "published"
 # Rough cost per trial, cheapest first: a sweep runs larger P first, cheap methods first within
 # a P, so an interrupted sweep still leaves complete rows for them.
 COST_RANK = {

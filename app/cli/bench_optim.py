@@ -43,6 +43,34 @@ def _fail(message: str) -> None:
     raise typer.Exit(2)
 
 
+# The options `handful bench optim` and `handful bench paper` share (one declaration each).
+PRESET = typer.Option(
+    None, "--preset", help="simulator preset: reference, fast (default: the paper-matching)"
+)
+COMMAND_HOLD = typer.Option(
+    None,
+    "--command-hold",
+    help="zero (each row held) or linear (ramped over each step); default: paper-matching",
+)
+OBJECTIVE = typer.Option(
+    None, "--objective", help="scoring rule: paper or published; default: paper-matching"
+)
+BACKEND = typer.Option("local", "--backend", help="local (process pool) or ray")
+ADDRESS = typer.Option(None, "--address", help="Ray cluster address (with --backend ray)")
+WORKERS = typer.Option(0, "--workers", help="parallel runs (default: all cores)")
+
+
+def check_execution(backend: str, address: str | None, workers: int) -> None:
+    """``--backend``, ``--address`` and ``--workers`` make sense together; one clear line and
+    exit 2 otherwise."""
+    if backend not in ("local", "ray"):
+        _fail(f"--backend must be local or ray, got {backend!r}")
+    if address and backend != "ray":
+        _fail("--address needs --backend ray")
+    if workers < 0:
+        _fail(f"--workers must be ≥ 0, got {workers}")
+
+
 def sim_settings(
     preset: str | None, command_hold: str | None, objective: str | None
 ) -> tuple[str, str, str]:
@@ -72,21 +100,13 @@ def optim(
     ),
     seeds: int = typer.Option(3, "--seeds", help="number of seeds (0 .. N-1)"),
     methods: list[str] = typer.Option(None, "--methods", help="methods (default: all)"),
-    preset: str = typer.Option(
-        None, "--preset", help="simulator preset: reference, fast (default: the paper-matching)"
-    ),
-    command_hold: str = typer.Option(
-        None,
-        "--command-hold",
-        help="zero (each row held) or linear (ramped over each step); default: paper-matching",
-    ),
-    objective: str = typer.Option(
-        None, "--objective", help="scoring rule: paper or published; default: paper-matching"
-    ),
+    preset: str = PRESET,
+    command_hold: str = COMMAND_HOLD,
+    objective: str = OBJECTIVE,
     out: Path = typer.Option(Path("bench_out/optim"), "--out", help="output (and cache) folder"),
-    backend: str = typer.Option("local", "--backend", help="local (process pool) or ray"),
-    address: str = typer.Option(None, "--address", help="Ray cluster address (with --backend ray)"),
-    workers: int = typer.Option(0, "--workers", help="parallel runs (default: all cores)"),
+    backend: str = BACKEND,
+    address: str = ADDRESS,
+    workers: int = WORKERS,
     progress: bool = typer.Option(True, "--progress/--no-progress", help="show progress bars"),
     redq: list[str] = typer.Option(
         None,
@@ -116,12 +136,7 @@ def optim(
     ps = _ints("levels", _split(levels, ["2"]))
     budgets = sorted(set(_ints("budget", _split(budget, ["100"]))))
     chosen = _split(methods, list(METHODS))
-    if backend not in ("local", "ray"):
-        _fail(f"--backend must be local or ray, got {backend!r}")
-    if address and backend != "ray":
-        _fail("--address needs --backend ray")
-    if workers < 0:
-        _fail(f"--workers must be ≥ 0, got {workers}")
+    check_execution(backend, address, workers)
     try:
         from app.sim import PRESETS
     except ImportError as exc:  # pragma: no cover - the simulator ships with handful

@@ -10,7 +10,17 @@ from pathlib import Path
 
 import typer
 
-from app.cli.bench_optim import _fail, sim_settings
+from app.cli.bench_optim import (
+    ADDRESS,
+    BACKEND,
+    COMMAND_HOLD,
+    OBJECTIVE,
+    PRESET,
+    WORKERS,
+    _fail,
+    check_execution,
+    sim_settings,
+)
 
 
 def paper(
@@ -32,20 +42,12 @@ def paper(
         help="BO's GP fits: warm (from the last full fit's hyperparameters, a full refit every "
         "10 trials or 10 %% of N) or full (the paper: from scratch after every trial)",
     ),
-    preset: str = typer.Option(
-        None, "--preset", help="simulator preset: reference, fast (default: the paper-matching)"
-    ),
-    command_hold: str = typer.Option(
-        None,
-        "--command-hold",
-        help="zero (each row held) or linear (ramped over each step); default: paper-matching",
-    ),
-    objective: str = typer.Option(
-        None, "--objective", help="scoring rule: paper or published; default: paper-matching"
-    ),
-    backend: str = typer.Option("local", "--backend", help="local (process pool) or ray"),
-    address: str = typer.Option(None, "--address", help="Ray cluster address (with --backend ray)"),
-    workers: int = typer.Option(0, "--workers", help="parallel runs (default: all cores)"),
+    preset: str = PRESET,
+    command_hold: str = COMMAND_HOLD,
+    objective: str = OBJECTIVE,
+    backend: str = BACKEND,
+    address: str = ADDRESS,
+    workers: int = WORKERS,
     progress: bool = typer.Option(True, "--progress/--no-progress", help="progress bars and ETA"),
     cached_only: bool = typer.Option(
         False, "--cached-only", help="run nothing: write paper.md from the runs stored in DIR"
@@ -69,12 +71,7 @@ def paper(
     preset, command_hold, objective = sim_settings(preset, command_hold, objective)
     if bo_fit not in ("warm", "full"):
         _fail(f"--bo-fit must be warm or full, got {bo_fit!r}")
-    if backend not in ("local", "ray"):
-        _fail(f"--backend must be local or ray, got {backend!r}")
-    if address and backend != "ray":
-        _fail("--address needs --backend ray")
-    if workers < 0:
-        _fail(f"--workers must be ≥ 0, got {workers}")
+    check_execution(backend, address, workers)
     from app.sim import PRESETS
 
     if preset not in PRESETS:

@@ -19,6 +19,7 @@ from sqlalchemy import (
 from sqlalchemy.orm import Mapped, mapped_column, relationship
 
 from app.db.base import Base, UTCDateTime, utcnow
+from app.policy import PressureLimits, policy_dim
 
 
 class User(Base):
@@ -108,6 +109,23 @@ class Experiment(Base):
     updated_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
 
     trials: Mapped[list[Trial]] = relationship(back_populates="experiment", order_by="Trial.index")
+
+    @property
+    def limits(self) -> PressureLimits | None:
+        """The hardware limits as one value, or None (the simulator's [0, 275.8 kPa] range)."""
+        if self.limits_nominal_pa is None:
+            return None
+        assert self.limits_max_step_pa is not None and self.limits_source_pa is not None
+        return PressureLimits(
+            nominal_pa=tuple(self.limits_nominal_pa),
+            max_step_pa=self.limits_max_step_pa,
+            source_pa=self.limits_source_pa,
+        )
+
+    @property
+    def dim(self) -> int:
+        """D, the length of θ (``app.policy.policy_dim``)."""
+        return policy_dim(self.horizon, self.with_release)
 
 
 class Trial(Base):

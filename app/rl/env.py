@@ -42,8 +42,13 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from app.bench.specs import HORIZON, PAPER_COMMAND_HOLD, PAPER_OBJECTIVE_RULE, PAPER_PRESET
-from app.policy import N_CHAMBERS
+from app.policy import (
+    HORIZON,
+    N_CHAMBERS,
+    PAPER_COMMAND_HOLD,
+    PAPER_OBJECTIVE_RULE,
+    PAPER_PRESET,
+)
 from app.sim import Episode, SimulationDiverged
 from app.sim.model import GRIP_CLOSED_FROM, check_task
 

@@ -15,7 +15,6 @@ from sqlalchemy.orm import Session
 
 from app.db.models import Measurement, Trial
 from app.optim import OptimError, Surrogate
-from app.policy import policy_dim
 from app.service import lifecycle as lc
 from app.service.auth import Actor
 from app.service.errors import InvalidInput
@@ -83,7 +82,7 @@ def export_csv(session: Session, experiment_id: int) -> str:
     confirmed it, and its raw repeats (``value unit source by who; ...``, a withdrawn one says
     so, with its reason)."""
     exp = get_experiment(session, experiment_id)
-    dim = policy_dim(exp.horizon, exp.with_release)
+    dim = exp.dim
     trials = list_trials(session, experiment_id)
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")

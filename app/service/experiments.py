@@ -36,25 +36,13 @@ from app.service.schemas import (
 DEFAULT_UNIT = {"tip_speed": "m/s", "throw": "score", "hammer": "score"}
 
 
-def limits_of(exp: Experiment) -> PressureLimits | None:
-    """The experiment's hardware limits, or None (sim range [0, 275.8 kPa])."""
-    if exp.limits_nominal_pa is None:
-        return None
-    assert exp.limits_max_step_pa is not None and exp.limits_source_pa is not None
-    return PressureLimits(
-        nominal_pa=tuple(exp.limits_nominal_pa),
-        max_step_pa=exp.limits_max_step_pa,
-        source_pa=exp.limits_source_pa,
-    )
-
-
 def policy_of(exp: Experiment) -> Policy:
     """The Policy that decodes this experiment's θ (with its limits, if any)."""
     return Policy(
         levels=exp.levels,
         horizon=exp.horizon,
         with_release=exp.with_release,
-        limits=limits_of(exp),
+        limits=exp.limits,
     )
 
 

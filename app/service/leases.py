@@ -195,6 +195,43 @@ def _gate(
     return None
 
 
+def open_lease(
+    session: Session,
+    trial: Trial,
+    *,
+    worker_id: str,
+    actor: Actor,
+    action: str,
+    lease_seconds: float,
+    now: datetime,
+) -> Lease:
+    """The one way a trial starts running: one more attempt, queued → running (audited as
+    ``action``, with a worker's id and the attempt; a run inside the server, ``SERVICE_WORKER``,
+    records none), and an active lease held by ``worker_id`` for ``lease_seconds`` (flushed;
+    the caller commits)."""
+    trial.attempts += 1
+    worker = {"worker_id": worker_id, "attempt": trial.attempts}
+    detail = None if worker_id == SERVICE_WORKER else worker
+    lc.transition(
+        session, trial, lc.RUNNING, actor=actor.username, action=action, detail=detail, now=now
+    )
+    lease = Lease(
+        id=str(uuid.uuid4()),
+        trial_id=trial.id,
+        worker_id=worker_id,
+        claimed_by=actor.username,
+        status="active",
+        attempt=trial.attempts,
+        created_at=now,
+        heartbeat_at=now,
+        expires_at=now + timedelta(seconds=lease_seconds),
+    )
+    session.add(lease)
+    touch(trial.experiment)
+    session.flush()
+    return lease
+
+
 def claim(
     session: Session,
     body: ClaimIn,
@@ -243,30 +280,15 @@ def claim(
             )
             touch(exp)
             continue
-        trial.attempts += 1
-        lc.transition(
+        lease = open_lease(
             session,
             trial,
-            lc.RUNNING,
-            actor=actor.username,
+            worker_id=body.worker_id,
+            actor=actor,
             action="trial.claim",
-            detail={"worker_id": body.worker_id, "attempt": trial.attempts},
+            lease_seconds=lease_seconds,
             now=now,
         )
-        lease = Lease(
-            id=str(uuid.uuid4()),
-            trial_id=trial.id,
-            worker_id=body.worker_id,
-            claimed_by=actor.username,
-            status="active",
-            attempt=trial.attempts,
-            created_at=now,
-            heartbeat_at=now,
-            expires_at=now + timedelta(seconds=lease_seconds),
-        )
-        session.add(lease)
-        touch(exp)
-        session.flush()
         out.append(
             ClaimRead(
                 lease_id=lease.id,

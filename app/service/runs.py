@@ -27,14 +27,30 @@ from app.service import lifecycle as lc
 from app.service.artifacts import npz_to_json, store_trajectory
 from app.service.audit import record
 from app.service.auth import Actor
-from app.service.errors import Conflict, InvalidInput, NotFound
+from app.service.errors import InvalidInput, NotFound
 from app.service.experiments import executed_theta, touch
-from app.service.leases import SERVICE_WORKER
+from app.service.leases import SERVICE_WORKER, open_lease
 from app.service.measurements import check_value, store_measurement
 from app.service.schemas import PreviewJobRead, TrialRead
-from app.service.trials import check_schedule_safe, get_trial
+from app.service.trials import check_schedule_safe, get_trial, lock_for
 
 log = logging.getLogger("handful.runs")
+
+
+def simulate(what: ServiceRun | PreviewJob) -> Any:
+    """The one simulation of a trial's schedule, for a run in the service and for a preview
+    alike (so a preview shows what a run does): the experiment's task, preset and command hold,
+    the arm's pose recorded for the 3D replay. Returns the ``app.sim.RolloutResult``."""
+    from app.sim import rollout
+
+    return rollout(
+        what.task,
+        what.schedule,
+        release_step=what.release_step,
+        preset=what.preset,
+        record_qpos=True,
+        command_hold=what.command_hold,
+    )
 
 
 def _trajectory_npz_bytes(result: Any) -> bytes:
@@ -77,37 +93,30 @@ def start_run(
     from app.sim import check_rollout
 
     now = now or utcnow()
-    trial = get_trial(session, trial_id, for_update=True)
+    trial = lock_for(
+        session,
+        trial_id,
+        target="sim",
+        source=lc.QUEUED,
+        dest=lc.RUNNING,
+        action="run",
+        other_target="a hardware worker runs it",
+    )
     exp = trial.experiment
-    if exp.target != "sim":
-        raise Conflict(f"trial #{trial.index} is a hardware trial; a hardware worker runs it")
-    lc.check_transition(trial, lc.RUNNING, action="run")
-    if trial.status != lc.QUEUED:
-        raise lc.IllegalTransition(
-            f"cannot run: trial #{trial.index} is {trial.status}, not queued",
-            current=trial.status,
-        )
     sched = check_schedule_safe(exp, trial.pressure_schedule_pa, trial.release_step)
     try:
         check_rollout(exp.task, sched, release_step=trial.release_step, preset=exp.sim_preset)
     except ValueError as exc:
         raise InvalidInput(f"trial #{trial.index} cannot be simulated: {exc}") from None
-    trial.attempts += 1
-    lc.transition(session, trial, lc.RUNNING, actor=actor.username, action="trial.run", now=now)
-    lease = Lease(
-        id=str(uuid.uuid4()),
-        trial_id=trial.id,
+    lease = open_lease(
+        session,
+        trial,
         worker_id=SERVICE_WORKER,
-        claimed_by=actor.username,
-        status="active",
-        attempt=trial.attempts,
-        created_at=now,
-        heartbeat_at=now,
-        expires_at=now + timedelta(seconds=lease_seconds),
+        actor=actor,
+        action="trial.run",
+        lease_seconds=lease_seconds,
+        now=now,
     )
-    session.add(lease)
-    touch(exp)
-    session.flush()
     return ServiceRun(
         trial.id,
         lease.id,
@@ -212,7 +221,7 @@ def run_trial(
     the simulation diverges or the simulator raises. If the trial was aborted meanwhile the
     result is dropped; if this process dies, the lease sweep fails the trial.
     """
-    from app.sim import SimulationDiverged, rollout
+    from app.sim import SimulationDiverged
 
     with db.write() as s:
         run = start_run(s, trial_id, actor=actor, lease_seconds=lease_seconds)
@@ -232,14 +241,7 @@ def run_trial(
     error = None
     result = None
     try:
-        result = rollout(
-            run.task,
-            run.schedule,
-            release_step=run.release_step,
-            preset=run.preset,
-            record_qpos=True,
-            command_hold=run.command_hold,
-        )
+        result = simulate(run)
     except SimulationDiverged as exc:
         error = f"simulation diverged: {exc}"
     except Exception as exc:  # whatever went wrong, the trial must not stay running
@@ -367,18 +369,11 @@ class PreviewRunner:
         return job.read(with_trajectory=False)
 
     def _run(self, job: PreviewJob) -> None:
-        from app.sim import SimulationDiverged, rollout
+        from app.sim import SimulationDiverged
 
         job.status, job.progress = "running", 0.1
         try:
-            res = rollout(
-                job.task,
-                job.schedule,
-                release_step=job.release_step,
-                preset=job.preset,
-                record_qpos=True,
-                command_hold=job.command_hold,
-            )
+            res = simulate(job)
             job.progress = 0.9
             raw = _trajectory_npz_bytes(res)
             job.result = {

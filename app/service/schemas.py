@@ -14,7 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, computed_fiel
 
 from app.db.models import AuditLog, Experiment, Trial
 from app.optim.methods import DEFAULT_METHOD
-from app.policy import N_CHAMBERS, TaskName, policy_dim, schedule_hash
+from app.policy import N_CHAMBERS, CommandHold, TaskName, schedule_hash
 
 DEFAULT_SOURCES = {"tip_speed": "tracker", "throw": "tape", "hammer": "tape"}
 
@@ -40,13 +40,11 @@ def sources_list(stored: str | None, task: str, target: str) -> list[str]:
     return default_objective_sources(task, target)
 
 
-#: keys of ``ExperimentRead.build``'s counts that are not statuses: trials awaiting a
-#: measurement, and reference trials not abandoned (outside the budget)
+#: key of ``ExperimentRead.build``'s counts that is not a status: reference trials not
+#: abandoned (outside the budget)
 REFERENCE_COUNT = "reference_trials"
-_NOT_STATUSES = ("awaiting_measurement", REFERENCE_COUNT)
 
 Target = Literal["sim", "hardware"]
-CommandHold = Literal["zero", "linear"]  # app.sim.COMMAND_HOLDS (not imported: it loads MuJoCo)
 ExperimentStatus = Literal["active", "paused", "completed", "archived"]
 Acquisition = Literal["logei", "ucb", "qlognei"]
 Unit = Literal["m", "m/s", "N", "score"]
@@ -177,6 +175,8 @@ class ExperimentPatch(_In):
 
 
 class LimitsRead(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
     nominal_pa: list[float]
     max_step_pa: float
     source_pa: float
@@ -195,6 +195,10 @@ class ReferenceRead(BaseModel):
 
 class ExperimentRead(BaseModel):
     """An experiment with its trial counts and best objective so far."""
+
+    # the stored columns of an ``Experiment`` are read by attribute (``limits`` and ``dim``
+    # are its properties); ``build`` adds the counts
+    model_config = ConfigDict(from_attributes=True)
 
     id: int
     name: str
@@ -237,6 +241,14 @@ class ExperimentRead(BaseModel):
     #: reference trials (drift checks; not abandoned): they do not count against the budget
     n_reference_trials: int = 0
 
+    @field_validator("objective_sources", mode="before")
+    @classmethod
+    def _sources(cls, value: Any, info: ValidationInfo) -> Any:
+        """A row's stored sources (comma-separated; None: the default) as a list."""
+        if value is None or isinstance(value, str):
+            return sources_list(value, info.data["task"], info.data["target"])
+        return value
+
     @classmethod
     def build(
         cls,
@@ -245,15 +257,21 @@ class ExperimentRead(BaseModel):
         status_counts: dict[str, int] | None = None,
         best: tuple[int, float] | tuple[int, float, int] | None = None,
     ) -> ExperimentRead:
-        counts = status_counts or {}
-        n_references = counts.get(REFERENCE_COUNT, 0)
-        used = (
-            sum(v for k, v in counts.items() if k not in ("abandoned", *_NOT_STATUSES))
-            - n_references
+        """``exp`` as the API shows it, with its trials' ``status_counts`` (status: count, plus
+        ``awaiting_measurement`` and ``REFERENCE_COUNT``) and its ``best`` trial (id, objective,
+        index)."""
+        out = cls.model_validate(exp)
+        counts = dict(status_counts or {})
+        out.n_awaiting_measurement = counts.pop("awaiting_measurement", 0)
+        out.n_reference_trials = counts.pop(REFERENCE_COUNT, 0)
+        out.status_counts = counts
+        out.n_trials = sum(counts.values())
+        out.n_budget_used = (
+            sum(v for k, v in counts.items() if k != "abandoned") - out.n_reference_trials
         )
-        reference = None
+        out.budget_reached = exp.budget is not None and out.n_budget_used >= exp.budget
         if exp.reference_every is not None:
-            reference = ReferenceRead(
+            out.reference = ReferenceRead(
                 every=exp.reference_every,
                 theta_from=exp.reference_theta_from or "incumbent",
                 trial_id=exp.reference_trial_id,
@@ -261,53 +279,10 @@ class ExperimentRead(BaseModel):
                 baseline_n=exp.drift_baseline_n,
                 tolerance=exp.drift_tolerance,
             )
-        limits = None
-        if exp.limits_nominal_pa is not None:
-            assert exp.limits_max_step_pa is not None and exp.limits_source_pa is not None
-            limits = LimitsRead(
-                nominal_pa=list(exp.limits_nominal_pa),
-                max_step_pa=exp.limits_max_step_pa,
-                source_pa=exp.limits_source_pa,
-            )
-        return cls(
-            id=exp.id,
-            name=exp.name,
-            task=exp.task,
-            target=exp.target,
-            sim_preset=exp.sim_preset,
-            command_hold=exp.command_hold,
-            objective_unit=exp.objective_unit,
-            objective_sources=objective_sources_of(exp),
-            levels=exp.levels,
-            horizon=exp.horizon,
-            with_release=exp.with_release,
-            dim=policy_dim(exp.horizon, exp.with_release),
-            limits=limits,
-            method=exp.method,
-            acquisition=exp.acquisition,
-            kappa=exp.kappa,
-            n_initial=exp.n_initial,
-            seed=exp.seed,
-            optimizer_settings=dict(exp.optimizer_settings or {}),
-            budget=exp.budget,
-            status=exp.status,
-            notes=exp.notes,
-            version=exp.version,
-            created_by=exp.created_by,
-            created_at=exp.created_at,
-            updated_at=exp.updated_at,
-            n_trials=sum(v for k, v in counts.items() if k not in _NOT_STATUSES),
-            status_counts={k: v for k, v in counts.items() if k not in _NOT_STATUSES},
-            best_objective=best[1] if best else None,
-            best_trial_id=best[0] if best else None,
-            best_trial_index=best[2] if best is not None and len(best) > 2 else None,
-            n_awaiting_measurement=counts.get("awaiting_measurement", 0),
-            n_budget_used=used,
-            budget_reached=exp.budget is not None and used >= exp.budget,
-            age_halflife_trials=exp.age_halflife_trials,
-            reference=reference,
-            n_reference_trials=n_references,
-        )
+        if best is not None:
+            out.best_trial_id, out.best_objective = best[0], best[1]
+            out.best_trial_index = best[2] if len(best) > 2 else None
+        return out
 
 
 class VersionRead(BaseModel):

@@ -45,7 +45,6 @@ from app.service.errors import (
 )
 from app.service.experiments import (
     get_experiment,
-    limits_of,
     optimizer_spec,
     policy_of,
     touch,
@@ -60,6 +59,31 @@ def get_trial(session: Session, trial_id: int, *, for_update: bool = False) -> T
     trial = session.get(Trial, trial_id, with_for_update=for_update or None)
     if trial is None:
         raise NotFound(f"trial {trial_id} not found")
+    return trial
+
+
+def lock_for(
+    session: Session,
+    trial_id: int,
+    *,
+    target: str,
+    source: str,
+    dest: str,
+    action: str,
+    other_target: str,
+) -> Trial:
+    """The trial, its row locked, if it is a ``target`` trial that ``action`` may move from
+    ``source`` to ``dest``; else NotFound, Conflict (another target: ``other_target`` says
+    what to do instead) or IllegalTransition naming its status."""
+    trial = get_trial(session, trial_id, for_update=True)
+    if trial.experiment.target != target:
+        raise Conflict(f"trial #{trial.index} is a {trial.experiment.target} trial; {other_target}")
+    lc.check_transition(trial, dest, action=action)
+    if trial.status != source:
+        raise lc.IllegalTransition(
+            f"cannot {action}: trial #{trial.index} is {trial.status}, not {source}",
+            current=trial.status,
+        )
     return trial
 
 
@@ -127,7 +151,7 @@ def check_ceilings(
     if exp.target != "hardware":
         return
     ceilings = ceilings or DEFAULT_CEILINGS
-    limits = limits_of(exp)
+    limits = exp.limits
     if limits is None:
         raise SafetyViolation("hardware experiment carries no pressure limits")
     try:
@@ -675,16 +699,16 @@ def confirm(
     ceilings: HardwareCeilings | None = None,
 ) -> TrialRead:
     """An operator's go-ahead for exactly this schedule (hash), re-checked against the limits."""
-    trial = get_trial(session, trial_id, for_update=True)
+    trial = lock_for(
+        session,
+        trial_id,
+        target="hardware",
+        source=lc.AWAITING_CONFIRMATION,
+        dest=lc.QUEUED,
+        action="confirm",
+        other_target="only hardware trials are confirmed",
+    )
     exp = trial.experiment
-    if exp.target != "hardware":
-        raise Conflict(f"trial #{trial.index} is a sim trial; only hardware trials are confirmed")
-    lc.check_transition(trial, lc.QUEUED, action="confirm")
-    if trial.status != lc.AWAITING_CONFIRMATION:
-        raise lc.IllegalTransition(
-            f"cannot confirm: trial #{trial.index} is {trial.status}, not awaiting_confirmation",
-            current=trial.status,
-        )
     current = schedule_hash(trial.pressure_schedule_pa, trial.release_step)
     if given_hash != current:
         raise ConfirmationMismatch(

@@ -6,6 +6,7 @@
 >>> rollout("throw", schedule_pa, release_step=4, command_hold="linear", objective_rule="published")
 """
 
+from app.policy import COMMAND_HOLDS, OBJECTIVE_RULES, check_command_hold, check_objective_rule
 from app.sim.batch import RolloutPool, rollout_batch
 from app.sim.model import TASKS, build_model, build_spec, export_xml
 from app.sim.params import (
@@ -19,14 +20,10 @@ from app.sim.params import (
 )
 from app.sim.presets import PRESETS, Preset
 from app.sim.rollout import (
-    COMMAND_HOLDS,
-    OBJECTIVE_RULES,
     Episode,
     RolloutResult,
     SimulationDiverged,
     Trajectory,
-    check_command_hold,
-    check_objective_rule,
     check_rollout,
     rollout,
 )

@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from app.policy import check_command_hold, check_objective_rule
 from app.procs import process_pool
 from app.sim.model import effective_params
 from app.sim.params import ArmParams
@@ -16,8 +17,6 @@ from app.sim.rollout import (
     RolloutResult,
     SimulationDiverged,
     _check_inputs,
-    check_command_hold,
-    check_objective_rule,
     compiled_model,
     rollout,
 )

@@ -353,18 +353,30 @@ def _add_gripper(tip: mujoco.MjsBody, params: ArmParams, coll: _Collision) -> mu
     if gp.grasp == "weld":
         half_sep = gp.finger_separation_m / 2.0
         for side, x in (("left", -half_sep), ("right", half_sep)):
-            _geom(
-                body,
-                f"{side}_finger",
-                mujoco.mjtGeom.mjGEOM_BOX,
-                [0.008, 0.012, finger_len / 2.0],
-                (0.3, 0.3, 0.3, 1.0),
-                coll.none,
-                pos=[x, 0.0, gp.palm_length_m + finger_len / 2.0],
-            )
+            _finger_geom(body, side, x, gp.palm_length_m, finger_len, coll.none)
         return body
     _add_fingers(body, params, coll)
     return body
+
+
+def _finger_geom(
+    body: mujoco.MjsBody,
+    side: str,
+    x: float,
+    palm_length_m: float,
+    finger_len: float,
+    coll: tuple[int, int],
+) -> None:
+    """A finger's box (the same for either grasp) at ``x``, from the palm's end outwards."""
+    _geom(
+        body,
+        f"{side}_finger",
+        mujoco.mjtGeom.mjGEOM_BOX,
+        [0.008, 0.012, finger_len / 2.0],
+        (0.3, 0.3, 0.3, 1.0),
+        coll,
+        pos=[x, 0.0, palm_length_m + finger_len / 2.0],
+    )
 
 
 PAD_HALF = (0.004, 0.011, 0.009375)  # a pad box's half sizes: thickness, width, length (m)
@@ -395,18 +407,10 @@ def _add_fingers(palm: mujoco.MjsBody, params: ArmParams, coll: _Collision) -> N
         # the finger's collision box: outside its pads, from the palm to the fingertip; on a
         # massless child body, so the pads' touch sensors (which count their own body's
         # contacts) never read its floor contacts as the grip
-        tip_len = gp.finger_tip_m - gp.palm_length_m
         frame = finger.add_body(name=f"{side}_finger_frame")
         _set_inertial(frame, 0.0, (0.0, 0.0, 0.0), [0.0, 0.0, 0.0])
-        _geom(
-            frame,
-            f"{side}_finger",
-            mujoco.mjtGeom.mjGEOM_BOX,
-            [0.008, 0.012, tip_len / 2.0],
-            (0.3, 0.3, 0.3, 1.0),
-            coll.finger,
-            pos=[sign * 0.012, 0.0, gp.palm_length_m + tip_len / 2.0],
-        )
+        tip_len = gp.finger_tip_m - gp.palm_length_m
+        _finger_geom(frame, side, sign * 0.012, gp.palm_length_m, tip_len, coll.finger)
         # pad k lies k pad lengths nearer the palm than pad 1
         for k, mu in enumerate(gp.pad_friction):
             z = origin_z - 2.0 * k * PAD_HALF[2]

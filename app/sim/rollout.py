@@ -59,8 +59,11 @@ import numpy as np
 from app.policy import (
     EPISODE_S,
     N_CHAMBERS,
+    OBJECTIVE_RULES,
     RELEASE_TASKS,
     PolicyError,
+    check_command_hold,
+    check_objective_rule,
     check_release_step,
     check_schedule,
 )
@@ -88,27 +91,6 @@ from app.sim.presets import Preset, get_preset
 OBJECTIVE_HZ = 100.0  # the tip-speed grid of `max_tip_speed` and `tip_speed_100hz`
 BEND_LIMIT_FRACTION = 0.995  # a hinge within 0.5 % of its range end counts as at its limit
 MAX_PLAUSIBLE_SPEED_M_S = 1000.0
-
-COMMAND_HOLDS: tuple[str, ...] = ("zero", "linear")
-OBJECTIVE_RULES: tuple[str, ...] = ("paper", "published")
-
-
-def check_command_hold(command_hold: object) -> str:
-    """``command_hold`` if known; ValueError naming the choices otherwise."""
-    if command_hold not in COMMAND_HOLDS:
-        raise ValueError(
-            f"unknown command hold {command_hold!r}; choose one of {', '.join(COMMAND_HOLDS)}"
-        )
-    return str(command_hold)
-
-
-def check_objective_rule(objective_rule: object) -> str:
-    """``objective_rule`` if known; ValueError naming the choices otherwise."""
-    if objective_rule not in OBJECTIVE_RULES:
-        raise ValueError(
-            f"unknown objective rule {objective_rule!r}; choose one of {', '.join(OBJECTIVE_RULES)}"
-        )
-    return str(objective_rule)
 
 
 class SimulationDiverged(RuntimeError):

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from app.policy import (
+    COMMAND_HOLDS,
     N_CHAMBERS,
     TASKS,
     HardwareCeilings,
@@ -143,8 +144,9 @@ def gate_hardware_trial(
         )
 
     hold = experiment.get("command_hold") or "zero"
-    if hold not in ("zero", "linear"):
-        raise SafetyRefusal(f"unknown command hold {hold!r}; this worker knows zero and linear")
+    if hold not in COMMAND_HOLDS:
+        known = " and ".join(COMMAND_HOLDS)
+        raise SafetyRefusal(f"unknown command hold {hold!r}; this worker knows {known}")
 
     return DriverCommand(
         trial_id=int(trial_id if trial_id is not None else trial.get("id", -1)),

@@ -76,15 +76,8 @@ def test_operator_writes_and_viewer_reads(live_server, api, viewer_api):
     assert info.value.status == 403 and "viewer" in info.value.detail
 
 
-def test_worker_token_cannot_confirm_create_or_measure(api, worker_api):
-    exp = api.create_experiment(
-        name="hw",
-        task="tip_speed",
-        levels=3,
-        method="random",
-        target="hardware",
-        limits={"nominal_pa": 100_000.0},
-    )
+def test_worker_token_cannot_confirm_create_or_measure(api, worker_api, new_exp):
+    exp = new_exp(api, name="hw", target="hardware")
     [trial] = api.suggest(exp["id"])
     attempts = [
         lambda: worker_api.confirm_trial(trial["id"], trial["schedule_hash"]),

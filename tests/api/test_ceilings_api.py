@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import pytest
 
-from app.client import HandfulAPIError
 from app.db.session import Database
 from app.policy import HardwareCeilings
 from app.service.auth import Actor
@@ -19,12 +18,6 @@ SERVER_ENV = {"HANDFUL_ROBOT__SOURCE_PA": "150000", "HANDFUL_ROBOT__MAX_STEP_PA"
 HW = {"name": "hw", "task": "tip_speed", "levels": 3, "method": "random", "target": "hardware"}
 
 
-def error_of(call, *args, **kwargs) -> HandfulAPIError:
-    with pytest.raises(HandfulAPIError) as info:
-        call(*args, **kwargs)
-    return info.value
-
-
 @pytest.mark.parametrize(
     ("limits", "words"),
     [
@@ -34,7 +27,7 @@ def error_of(call, *args, **kwargs) -> HandfulAPIError:
         ({"nominal_pa": 100_000.0, "max_step_pa": 25_000.0, "source_pa": 150_000.0}, "20 kPa"),
     ],
 )
-def test_limits_beyond_the_ceilings_are_refused_in_kpa(module_server, limits, words):
+def test_limits_beyond_the_ceilings_are_refused_in_kpa(error_of, module_server, limits, words):
     api = module_server.client()
     before = len(api.list_experiments())
     err = error_of(api.create_experiment, **HW, limits=limits)
@@ -50,7 +43,7 @@ def test_limits_within_the_ceilings_are_kept(module_server):
     assert exp["limits"]["source_pa"] == 140_000.0
 
 
-def test_an_experiment_wider_than_todays_ceilings_gets_no_schedule_through(module_server):
+def test_an_experiment_wider_than_todays_ceilings_gets_no_schedule_through(error_of, module_server):
     """Made under the paper robot's ceilings (205 kPa, 30 kPa), run on a server whose robot
     allows 150 kPa and 20 kPa steps: suggest, attach, confirm and claim all refuse it."""
     db = Database(module_server.db_url)

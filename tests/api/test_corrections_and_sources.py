@@ -5,25 +5,6 @@ from __future__ import annotations
 
 import pytest
 
-from app.client import HandfulAPIError
-
-HW_THROW = {
-    "name": "throw",
-    "task": "throw",
-    "levels": 3,
-    "n_initial": 2,
-    "target": "hardware",
-    "sim_preset": "fast",
-    "objective_unit": "m",
-    "limits": {"nominal_pa": 100_000.0},
-}
-
-
-def error_of(call, *args, **kwargs) -> HandfulAPIError:
-    with pytest.raises(HandfulAPIError) as info:
-        call(*args, **kwargs)
-    return info.value
-
 
 def tape(*values: float, source: str = "tape") -> list[dict]:
     return [{"value": v, "unit": "m", "source": source} for v in values]
@@ -36,8 +17,8 @@ def measured(api, exp_id: int, *values: float) -> dict:
     return api.get_trial(t["id"])
 
 
-def test_a_typo_is_superseded_and_a_repeat_withdrawn_with_history(api):
-    exp = api.create_experiment(**HW_THROW)
+def test_a_typo_is_superseded_and_a_repeat_withdrawn_with_history(error_of, hw_exp, api):
+    exp = hw_exp(api)
     a = measured(api, exp["id"], 1.0, 1.2)
     b = measured(api, exp["id"], 2.0, 12.9)  # 12.9 typed for 1.29
     assert b["objective"] == pytest.approx(7.45)
@@ -72,8 +53,8 @@ def test_a_typo_is_superseded_and_a_repeat_withdrawn_with_history(api):
     assert suggested["status"] == "awaiting_confirmation"
 
 
-def test_tracker_and_tape_are_not_averaged(api):
-    exp = api.create_experiment(**HW_THROW)
+def test_tracker_and_tape_are_not_averaged(hw_exp, api):
+    exp = hw_exp(api)
     assert exp["objective_sources"] == ["tape", "imported"]
     [t] = api.suggest(exp["id"])
     api.preview_and_confirm(t)
@@ -85,7 +66,7 @@ def test_tracker_and_tape_are_not_averaged(api):
     assert tr["objective"] == pytest.approx(1.1) and tr["n_measurements"] == 2
     assert [m["source"] for m in tr["measurements"]] == ["tracker", "tape", "tape"]
     # an experiment that chose the tracker
-    by_tracker = api.create_experiment(**{**HW_THROW, "objective_sources": ["tracker"]})
+    by_tracker = hw_exp(api, objective_sources=["tracker"])
     [t] = api.suggest(by_tracker["id"])
     api.preview_and_confirm(t)
     api.add_measurements(t["id"], tape(5.0, source="tracker") + tape(1.0))

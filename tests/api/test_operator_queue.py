@@ -3,29 +3,9 @@ the budget reached; and the form rules the API checks (n_initial vs budget, budg
 
 from __future__ import annotations
 
-import pytest
 
-from app.client import HandfulAPIError
-
-
-def error_of(call, *args, **kwargs) -> HandfulAPIError:
-    with pytest.raises(HandfulAPIError) as info:
-        call(*args, **kwargs)
-    return info.value
-
-
-def test_counts_of_what_awaits_the_operator_and_the_budget(api, worker_api):
-    exp = api.create_experiment(
-        name="queue",
-        task="throw",
-        target="hardware",
-        levels=3,
-        n_initial=2,
-        budget=2,
-        sim_preset="fast",
-        objective_unit="m",
-        limits={"nominal_pa": 100_000.0},
-    )
+def test_counts_of_what_awaits_the_operator_and_the_budget(error_of, hw_exp, api, worker_api):
+    exp = hw_exp(api, name="queue", budget=2)
     a, b = api.suggest(exp["id"], n=2)
     listed = {e["id"]: e for e in api.list_experiments()}[exp["id"]]
     assert listed["status_counts"] == {"awaiting_confirmation": 2}
@@ -50,7 +30,7 @@ def test_counts_of_what_awaits_the_operator_and_the_budget(api, worker_api):
     assert err.status == 422 and "below the 2 trials" in err.detail
 
 
-def test_n_initial_must_fit_in_the_budget(api):
+def test_n_initial_must_fit_in_the_budget(error_of, api):
     err = error_of(api.create_experiment, name="x", task="throw", levels=3, budget=5)
     assert err.status == 422 and "12 random initial trials" in err.detail
     assert "budget of 5" in err.detail

@@ -3,27 +3,9 @@ schedule: the server records each preview (who, when, hash, hold) and refuses th
 
 from __future__ import annotations
 
-import pytest
-
-from app.client import HandfulAPIError, HandfulClient
+from app.client import HandfulClient
 from app.db.session import Database
 from app.service.auth import add_user, create_token
-
-HW = {
-    "name": "hw",
-    "task": "tip_speed",
-    "levels": 3,
-    "method": "random",
-    "target": "hardware",
-    "sim_preset": "fast",
-    "limits": {"nominal_pa": 100_000.0},
-}
-
-
-def error_of(call, *args, **kwargs) -> HandfulAPIError:
-    with pytest.raises(HandfulAPIError) as info:
-        call(*args, **kwargs)
-    return info.value
 
 
 def preview(api, trial_id: int) -> dict:
@@ -32,8 +14,9 @@ def preview(api, trial_id: int) -> dict:
     return job
 
 
-def test_confirm_needs_this_operators_preview_of_this_schedule(live_server, api):
-    exp = api.create_experiment(**HW)
+def test_confirm_needs_this_operators_preview_of_this_schedule(error_of, hw_exp, live_server, api):
+    # tip speed, random search (a hardware experiment measured by the tracker)
+    exp = hw_exp(api, task="tip_speed", method="random", n_initial=None, objective_unit=None)
     a, b = api.suggest(exp["id"], n=2)
     # never previewed: refused, whatever hash the client sends, and it says why
     err = error_of(api.confirm_trial, a["id"], a["schedule_hash"])

@@ -7,19 +7,13 @@ import httpx
 import numpy as np
 import pytest
 
-from app.client import HandfulAPIError, HandfulClient
+from app.client import HandfulClient
 from app.policy import Policy
 
 NEW_EXP = {
     "name": "exp",
     "sim_preset": "fast",
 }  # this module's experiments (see tests/conftest.py new_exp)
-
-
-def error_of(call, *args, **kwargs) -> HandfulAPIError:
-    with pytest.raises(HandfulAPIError) as info:
-        call(*args, **kwargs)
-    return info.value
 
 
 @pytest.fixture
@@ -29,7 +23,7 @@ def queued(api, new_exp):
     return exp, trial
 
 
-def test_get_trial_has_measurements_and_audit(api, queued):
+def test_get_trial_has_measurements_and_audit(error_of, api, queued):
     _, trial = queued
     t = api.get_trial(trial["id"])
     assert t["measurements"] == []
@@ -67,7 +61,7 @@ def test_measurements_keep_every_repeat_and_give_mean_and_sem(api, queued):
     assert (t["objective"], t["n_measurements"]) == (4.0, 3)
 
 
-def test_duplicate_post_is_refused_and_stores_nothing(api, queued):
+def test_duplicate_post_is_refused_and_stores_nothing(error_of, api, queued):
     _, trial = queued
     body = [{"value": 1.5, "unit": "m/s"}]
     first = api.add_measurements(trial["id"], body, idempotency_key="k-dup-1")
@@ -127,7 +121,7 @@ def test_a_retry_after_a_lost_reply_stores_once_and_gets_the_first_receipt(live_
         ([{"value": 1.0, "unit": "m/s"}, {"value": -3.0, "unit": "m/s"}], "repeat 2"),
     ],
 )
-def test_bad_measurements_are_refused_whole(api, queued, repeats, words):
+def test_bad_measurements_are_refused_whole(error_of, api, queued, repeats, words):
     _, trial = queued
     err = error_of(api.add_measurements, trial["id"], repeats)
     assert err.status == 422 and words in str(err.detail)
@@ -135,7 +129,7 @@ def test_bad_measurements_are_refused_whole(api, queued, repeats, words):
     assert t["n_measurements"] == 0 and t["status"] == "queued"
 
 
-def test_negative_distance_is_refused(api, new_exp):
+def test_negative_distance_is_refused(error_of, api, new_exp):
     exp = new_exp(api, task="throw", objective_unit="m")
     [trial] = api.suggest(exp["id"])
     err = error_of(api.add_measurements, trial["id"], [{"value": -2.0, "unit": "m"}])
@@ -186,8 +180,8 @@ def live_server_limit(_server) -> int:
     return Settings().max_body_bytes
 
 
-def test_measuring_a_pending_or_finished_trial_is_illegal(api, new_exp):
-    exp = new_exp(api, target="hardware", limits={"nominal_pa": 100_000.0})
+def test_measuring_a_pending_or_finished_trial_is_illegal(error_of, api, new_exp):
+    exp = new_exp(api, target="hardware")
     [trial] = api.suggest(exp["id"])
     err = error_of(api.add_measurements, trial["id"], [{"value": 1.0, "unit": "m/s"}])
     assert err.status == 409 and "awaiting_confirmation" in err.detail
@@ -196,7 +190,7 @@ def test_measuring_a_pending_or_finished_trial_is_illegal(api, new_exp):
     assert err.status == 409 and "abandoned" in err.detail
 
 
-def test_fail_abandon_and_illegal_transitions(api, new_exp):
+def test_fail_abandon_and_illegal_transitions(error_of, api, new_exp):
     exp = new_exp(api)
     a, b = api.suggest(exp["id"], n=2)
     t = api.fail_trial(a["id"], "the arm hit the table")
@@ -213,7 +207,7 @@ def test_fail_abandon_and_illegal_transitions(api, new_exp):
     assert api.get_experiment(exp["id"])["status_counts"] == {"failed": 1, "abandoned": 1}
 
 
-def test_resolve_needs_review_only(api, queued):
+def test_resolve_needs_review_only(error_of, api, queued):
     _, trial = queued
     err = error_of(api.resolve_trial, trial["id"], "fail", "why not")
     assert err.status == 409 and "not needs_review" in err.detail
@@ -221,7 +215,7 @@ def test_resolve_needs_review_only(api, queued):
     assert err.status == 422
 
 
-def test_run_simulates_and_records(api, queued):
+def test_run_simulates_and_records(error_of, api, queued):
     _, trial = queued
     t = api.run_trial(trial["id"])
     assert t["status"] == "completed" and t["has_trajectory"]
@@ -238,7 +232,9 @@ def test_run_simulates_and_records(api, queued):
     assert err.status == 409 and "completed" in err.detail
 
 
-def test_run_with_a_horizon_the_simulator_cannot_run_is_422_and_leaves_it_queued(api, new_exp):
+def test_run_with_a_horizon_the_simulator_cannot_run_is_422_and_leaves_it_queued(
+    error_of, api, new_exp
+):
     exp = new_exp(api, horizon=3)  # 5 s / 3 is not a whole number of physics steps
     [trial] = api.suggest(exp["id"])
     err = error_of(api.run_trial, trial["id"])
@@ -246,8 +242,8 @@ def test_run_with_a_horizon_the_simulator_cannot_run_is_422_and_leaves_it_queued
     assert api.get_trial(trial["id"])["status"] == "queued"
 
 
-def test_run_refuses_hardware_and_missing_trajectory_is_404(api, new_exp):
-    exp = new_exp(api, target="hardware", limits={"nominal_pa": 100_000.0})
+def test_run_refuses_hardware_and_missing_trajectory_is_404(error_of, api, new_exp):
+    exp = new_exp(api, target="hardware")
     [trial] = api.suggest(exp["id"])
     err = error_of(api.run_trial, trial["id"])
     assert err.status == 409 and "hardware" in err.detail
@@ -255,8 +251,8 @@ def test_run_refuses_hardware_and_missing_trajectory_is_404(api, new_exp):
     assert err.status == 404 and "no trajectory" in err.detail
 
 
-def test_preview_runs_exactly_the_trials_schedule(api, new_exp):
-    exp = new_exp(api, target="hardware", limits={"nominal_pa": 100_000.0})
+def test_preview_runs_exactly_the_trials_schedule(error_of, api, new_exp):
+    exp = new_exp(api, target="hardware")
     [trial] = api.suggest(exp["id"])
     job = api.preview(trial["id"])
     assert job["status"] in ("queued", "running") and job["trajectory"] is None
@@ -280,8 +276,8 @@ def test_preview_runs_exactly_the_trials_schedule(api, new_exp):
     assert error_of(api.preview, 99_999_999).status == 404
 
 
-def test_confirm_binds_the_exact_schedule(api, new_exp):
-    exp = new_exp(api, target="hardware", limits={"nominal_pa": 100_000.0})
+def test_confirm_binds_the_exact_schedule(error_of, api, new_exp):
+    exp = new_exp(api, target="hardware")
     [trial] = api.suggest(exp["id"])
     err = error_of(api.confirm_trial, trial["id"], "0" * 64)
     assert err.status == 409 and err.code == "confirmation_mismatch"

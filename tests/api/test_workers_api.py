@@ -17,7 +17,6 @@ from app.policy import Policy, PressureLimits, schedule_hash
 from ..conftest import claim_until_empty
 
 SERVER_ENV = {"HANDFUL_LEASE_SECONDS": "60", "HANDFUL_MAX_ATTEMPTS": "2"}
-HARDWARE_LIMITS = {"nominal_pa": 100_000.0, "max_step_pa": 30_000.0, "source_pa": 205_000.0}
 
 
 @pytest.fixture(autouse=True)
@@ -42,13 +41,7 @@ def npz_bytes(**arrays) -> bytes:
     return buf.getvalue()
 
 
-def error_of(call, *args, **kwargs) -> HandfulAPIError:
-    with pytest.raises(HandfulAPIError) as info:
-        call(*args, **kwargs)
-    return info.value
-
-
-def test_sim_claim_heartbeat_result(op, worker, new_exp):
+def test_sim_claim_heartbeat_result(error_of, op, worker, new_exp):
     exp = new_exp(op)
     [trial] = op.suggest(exp["id"])
     [c] = worker.claim("w-1", "sim", max_trials=4)
@@ -80,7 +73,7 @@ def test_sim_claim_heartbeat_result(op, worker, new_exp):
     assert err.status == 409 and err.code == "lease_lost"
 
 
-def test_bad_results_are_refused_and_store_nothing(op, worker, module_server, new_exp):
+def test_bad_results_are_refused_and_store_nothing(error_of, op, worker, module_server, new_exp):
     exp = new_exp(op)
     a, b = op.suggest(exp["id"], n=2)
     claims = worker.claim("w-1", "sim", max_trials=2)
@@ -151,7 +144,9 @@ def test_sim_fault_fails_hardware_fault_needs_review(op, worker, new_exp):
     assert op.get_trial(ht["id"])["status"] == "completed"
 
 
-def test_hardware_gate_confirmation_and_changed_schedule(op, worker, module_server, new_exp):
+def test_hardware_gate_confirmation_and_changed_schedule(
+    error_of, op, worker, module_server, new_exp
+):
     hw = new_exp(op, target="hardware")
     a, b, c3 = op.suggest(hw["id"], n=3)
     assert worker.claim("hw", "hardware", max_trials=3) == []  # none confirmed
@@ -198,7 +193,7 @@ def test_executed_schedule_beyond_limits_needs_review(op, worker, new_exp):
     assert out["executed_pressure_schedule_pa"][3][5] == 150_000.0
 
 
-def test_abort_revokes_the_lease_and_refuses_the_late_result(op, worker, new_exp):
+def test_abort_revokes_the_lease_and_refuses_the_late_result(error_of, op, worker, new_exp):
     exp = new_exp(op)
     [t] = op.suggest(exp["id"])
     [c] = worker.claim("w", "sim")
@@ -229,7 +224,7 @@ def test_base64_trajectory_roundtrip(op, worker, new_exp):
     assert base64.b64encode(worker_npz)
 
 
-def test_resolve_complete_needs_a_measurement_and_fail_ends_it(op, worker, new_exp):
+def test_resolve_complete_needs_a_measurement_and_fail_ends_it(error_of, op, worker, new_exp):
     hw = new_exp(op, target="hardware")
     a, b = op.suggest(hw["id"], n=2)
     for t in (a, b):
@@ -269,7 +264,7 @@ def test_hardware_throw_waits_for_the_operators_tape_measure(op, worker, new_exp
 
 
 def test_a_small_upload_of_a_huge_array_is_refused_before_the_lock(
-    op, worker, module_server, new_exp
+    error_of, op, worker, module_server, new_exp
 ):
     exp = new_exp(op)
     [t] = op.suggest(exp["id"])

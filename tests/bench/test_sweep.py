@@ -179,9 +179,7 @@ def test_bad_arguments_exit_nonzero_with_one_clear_line(tmp_path, args, message)
 
 
 @pytest.mark.slow
-def test_a_tiny_sweep_on_local_ray_agrees_with_the_local_backend(tmp_path):
-    import ray
-
+def test_a_tiny_sweep_on_local_ray_agrees_with_the_local_backend(tmp_path, sweep_both_ways):
     specs = bench.make_specs(
         methods=["random", "cem"],
         tasks=["hammer"],
@@ -190,12 +188,7 @@ def test_a_tiny_sweep_on_local_ray_agrees_with_the_local_backend(tmp_path):
         seeds=2,
         preset="fast",
     )
-    local = bench.run_sweep(specs, tmp_path / "local", workers=2, progress=False)
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    try:
-        remote = bench.run_sweep(specs, tmp_path / "ray", backend="ray", progress=False)
-    finally:
-        ray.shutdown()
+    local, remote = sweep_both_ways(specs, workers=2)
     for s in specs:
         assert [r["objective"] for r in remote[s]] == [r["objective"] for r in local[s]]
         assert [r["theta"] for r in remote[s]] == [r["theta"] for r in local[s]]

@@ -124,19 +124,12 @@ def test_a_run_writes_a_row_per_episode_and_resumes_exactly_from_its_checkpoint(
 
 
 @pytest.mark.slow
-def test_redq_joints_on_local_and_ray_backends_agree(tmp_path: Path) -> None:
-    import ray
-
+def test_redq_joints_on_local_and_ray_backends_agree(tmp_path: Path, sweep_both_ways) -> None:
     specs = bench.make_specs(
         methods=["redq-joints"], tasks=["throw"], levels=[2], budgets=[4], seeds=2,
         preset="fast", command_hold="linear", objective_rule="published", rl_settings=TINY,
     )  # fmt: skip
-    local = bench.run_sweep(specs, tmp_path / "local", workers=1, progress=False)
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    try:
-        remote = bench.run_sweep(specs, tmp_path / "ray", backend="ray", progress=False)
-    finally:
-        ray.shutdown()
+    local, remote = sweep_both_ways(specs, workers=1)
     for s in specs:
         assert objectives(remote[s]) == objectives(local[s])
         assert len(local[s]) == 4 and len(local[s][0]["theta"]) == 10 * 13

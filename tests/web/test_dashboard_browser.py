@@ -313,17 +313,13 @@ def test_operator_loop_on_the_standin_robot(
 
 
 def test_viewer_sees_no_write_controls_and_cannot_forge_a_post(
-    dashboard_server: Any, page: Any, screenshots: Path
+    dashboard_server: Any, new_exp: Any, page: Any, screenshots: Path
 ) -> None:
     """A viewer sees the experiment but no write control; a forged post gets a 403."""
     server = dashboard_server
     api = server.client("operator")
-    experiment = api.create_experiment(
-        name="viewer check",
-        task="tip_speed",
-        target="hardware",
-        levels=5,
-        limits={"nominal_pa": 100_000.0, "max_step_pa": 30_000.0, "source_pa": 205_000.0},
+    experiment = new_exp(
+        api, name="viewer check", target="hardware", levels=5, method="bo-lei-default"
     )
     [trial] = api.suggest(experiment["id"])
     login(page, server, "viewer")
@@ -362,20 +358,13 @@ def test_viewer_sees_no_write_controls_and_cannot_forge_a_post(
 
 
 def test_bad_measurements_fail_and_review_from_the_trial_page(
-    dashboard_server_factory: Any, page: Any, screenshots: Path
+    dashboard_server_factory: Any, hw_exp: Any, page: Any, screenshots: Path
 ) -> None:
     """Text, NaN and a negative distance are refused, each with words on the page; failing
     needs a reason; a lost hardware lease's needs_review is resolved from the page."""
     server = dashboard_server_factory(HANDFUL_LEASE_SECONDS="1")
     api = server.client("operator")
-    experiment = api.create_experiment(
-        name="bad input",
-        task="throw",
-        target="hardware",
-        levels=5,
-        objective_unit="m",
-        limits={"nominal_pa": 100_000.0, "max_step_pa": 30_000.0, "source_pa": 205_000.0},
-    )
+    experiment = hw_exp(api, name="bad input", levels=5, n_initial=None, sim_preset="reference")
     trial, lost = api.suggest(experiment["id"], n=2)
     api.preview_and_confirm(trial)
     login(page, server, "operator")

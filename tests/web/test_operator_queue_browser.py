@@ -10,23 +10,13 @@ from typing import Any
 
 from tests.web.test_dashboard_browser import login
 
-LIMITS = {"nominal_pa": 100_000.0, "max_step_pa": 30_000.0, "source_pa": 205_000.0}
 
-
-def test_the_queue_an_operator_lives_in(dashboard_server: Any, page: Any, screenshots: Path):
+def test_the_queue_an_operator_lives_in(
+    dashboard_server: Any, hw_exp: Any, page: Any, screenshots: Path
+):
     server = dashboard_server
     api, worker = server.client("operator"), server.client("worker")
-    exp = api.create_experiment(
-        name="queue",
-        task="throw",
-        target="hardware",
-        levels=3,
-        budget=6,
-        n_initial=3,
-        sim_preset="fast",
-        objective_unit="m",
-        limits=LIMITS,
-    )
+    exp = hw_exp(api, name="queue", budget=6, n_initial=3)
     a, b = api.suggest(exp["id"], n=2)
     login(page, server, "operator")
     # the list: what awaits confirmation / measurement, live (no reload)

@@ -12,18 +12,10 @@ from app.workers.drivers import load_driver
 from app.workers.hardware import HardwareWorker
 
 
-def test_stopping_a_running_hardware_trial_aborts_the_driver(op, worker):
+def test_stopping_a_running_hardware_trial_aborts_the_driver(op, worker, new_exp):
     # its own server: a claim on the shared one could take another test's queued trial
     api, worker_api = op, worker
-    exp = api.create_experiment(
-        name="stop",
-        task="tip_speed",
-        target="hardware",
-        levels=3,
-        method="random",
-        sim_preset="fast",
-        limits={"nominal_pa": 100_000.0},
-    )
+    exp = new_exp(api, name="stop", target="hardware", sim_preset="fast")
     [trial] = api.suggest(exp["id"])
     api.preview_and_confirm(trial)
     driver = load_driver(

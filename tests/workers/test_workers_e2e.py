@@ -10,6 +10,8 @@ from __future__ import annotations
 import io
 import time
 from collections import Counter
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -44,6 +46,24 @@ def hardware_experiment(api) -> dict:
         limits=HW_LIMITS,
         seed=11,
     )
+
+
+def recorded_robot(worker_factory, server, tmp_path: Path, *args: str) -> tuple[Any, Path]:
+    """A hardware worker whose stand-in robot (fast preset, real time, its drift state in
+    ``tmp_path``) sits behind the recording driver; ``args`` go to the worker. Returns the
+    worker and the recording's log."""
+    log = tmp_path / "hw.jsonl"
+    robot = worker_factory(
+        server,
+        "hardware",
+        "--driver",
+        "recording",
+        *("-o", "inner=standin", "-o", f"log={log}"),
+        *("-o", "inner.preset=fast", "-o", "inner.realtime=true"),
+        *("-o", f"inner.state_file={tmp_path / 'standin.json'}"),
+        *args,
+    )
+    return robot, log
 
 
 def statuses(api, exp_id: int) -> Counter:
@@ -144,16 +164,7 @@ def test_worker_kill9_mid_trial_requeues_sim_and_holds_hardware_for_review(
     [hw_trial] = api.suggest(hw["id"], n=1)
     assert hw_trial["status"] == "awaiting_confirmation"
     api.preview_and_confirm(hw_trial)
-    log = tmp_path / "hw.jsonl"
-    robot = worker_factory(
-        server,
-        "hardware",
-        "--driver",
-        "recording",
-        *("-o", "inner=standin", "-o", f"log={log}"),
-        *("-o", "inner.preset=fast", "-o", "inner.realtime=true"),
-        *("-o", f"inner.state_file={tmp_path / 'standin.json'}"),
-    )
+    robot, log = recorded_robot(worker_factory, server, tmp_path)
     wait_until("the robot to start the trial", lambda: len(read_log(log)) == 1)
     robot.kill9()
     review = wait_until(
@@ -182,18 +193,12 @@ def test_hardware_worker_runs_only_confirmed_trials_and_reports_tracking(
         api.confirm_trial(confirmed["id"], wrong)
     assert err.value.status in (409, 422)
     api.preview_and_confirm(confirmed)
-    log = tmp_path / "hw.jsonl"
-    robot = worker_factory(
+    robot, log = recorded_robot(
+        worker_factory,
         server,
-        "hardware",
-        "--driver",
-        "recording",
-        *("-o", "inner=standin", "-o", f"log={log}", "-o", "inner.preset=fast"),
-        *("-o", "inner.realtime=true", "-o", "inner.fault_probability=0"),
-        *("-o", "inner.tracker_loss_probability=0"),
-        *("-o", f"inner.state_file={tmp_path / 'standin.json'}"),
-        "--idle-exit",
-        "3",
+        tmp_path,
+        *("-o", "inner.fault_probability=0", "-o", "inner.tracker_loss_probability=0"),
+        *("--idle-exit", "3"),
     )
     assert robot.wait() == 0, robot.log()
     reached = read_log(log)
