@@ -275,27 +275,22 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     set_torch_threads(1)
     out = args.out / f"gap{args.gap:g}_P{args.levels}_{args.preset}"
-    targets = {
-        i: cached(out / f"target_{i}.json", lambda i=i: random_target(args, i))
-        for i in range(1, args.instances + 1)
-    }
-    if args.only == "targets":
-        return 0
-    priors = {
-        s: cached(out / f"prior_{s}.json", lambda s=s: sim_prior(args, s))
-        for s in range(args.seeds)
-    }
-    if args.only == "priors":
-        return 0
-    runs = {}
-    for s in range(args.seeds):
-        prior = PriorData(priors[s]["theta"], priors[s]["objective"], source=f"sim seed {s}")
-        for i in range(1, args.instances + 1):
+    # instance by instance (its target, then its runs), so a stopped run leaves whole instances
+    targets: dict[int, dict[str, Any]] = {}
+    priors: dict[int, dict[str, Any]] = {}
+    runs: dict[tuple[int, int, str], dict[str, Any]] = {}
+    for i in range(1, args.instances + 1):
+        targets[i] = cached(out / f"target_{i}.json", lambda i=i: random_target(args, i))
+        for s in range(args.seeds):
+            if s not in priors:
+                priors[s] = cached(out / f"prior_{s}.json", lambda s=s: sim_prior(args, s))
+            p = priors[s]
+            prior = PriorData(p["theta"], p["objective"], source=f"sim seed {s}")
             for m in ("multitask", "warmstart", "none"):
                 runs[(i, s, m)] = cached(
                     out / f"run_{m}_{i}_{s}.json",
-                    lambda i=i, s=s, m=m, p=prior: hardware_run(
-                        args, i, s, m, targets[i]["target"], p
+                    lambda i=i, s=s, m=m, prior=prior: hardware_run(
+                        args, i, s, m, targets[i]["target"], prior
                     ),
                 )
     cpu = sum(d["cpu_s"] for d in [*targets.values(), *priors.values(), *runs.values()])
