@@ -11,7 +11,17 @@ from __future__ import annotations
 from pathlib import Path
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
-PAGES = ("sim", "paper", "optim", "redq", "service", "load", "workers", "dashboard")
+PAGES = (
+    "sim",
+    "paper",
+    "optim",
+    "redq",
+    "service",
+    "load",
+    "workers",
+    "sim_to_real",
+    "dashboard",
+)
 
 
 def demote(text: str) -> str:

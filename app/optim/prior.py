@@ -65,10 +65,12 @@ class PriorData:
             raise SettingsError(f"sim prior: θ of trial {i} is not finite")
         if np.any((th < 0.0) | (th > 1.0)):
             i, j = (int(v) for v in np.argwhere((th < 0.0) | (th > 1.0))[0])
-            raise SettingsError(f"sim prior: θ[{i}][{j}] = {th[i, j]!r} is outside [0, 1]")
+            raise SettingsError(f"sim prior: θ[{i}][{j}] = {float(th[i, j])!r} is outside [0, 1]")
         if not np.all(np.isfinite(y)):
             i = int(np.argwhere(~np.isfinite(y))[0][0])
-            raise SettingsError(f"sim prior: objective of trial {i} is not finite ({y[i]!r})")
+            raise SettingsError(
+                f"sim prior: objective of trial {i} is not finite ({float(y[i])!r})"
+            )
         th.setflags(write=False)
         y.setflags(write=False)
         object.__setattr__(self, "theta", th)
