@@ -19,7 +19,7 @@ from sqlalchemy import text
 
 from app.api import errors
 from app.api.limits import BodySizeLimit, SecurityHeaders
-from app.api.routes import auth, experiments, trials, workers
+from app.api.routes import auth, experiments, sim_prior, trials, workers
 from app.config import Settings
 from app.db.session import Database
 from app.service.auth import LoginLimiter
@@ -133,6 +133,22 @@ def _offline_docs(app: FastAPI) -> None:
         )
 
 
+def _twins(app: FastAPI) -> None:
+    """Every hardware trial's sim twins, made in the compute processes by a background
+    thread (``app.service.twins``); started and stopped with the app."""
+    from app.service.twins import TwinJob, TwinRunner, simulate
+
+    compute: ComputeRunner = app.state.compute
+
+    def call(job: TwinJob) -> Any:
+        return compute.call(simulate, job, shard=job.experiment_id, what="the sim twin")
+
+    runner = TwinRunner(app.state.db, call, interval_s=app.state.settings.twin_interval_s)
+    app.state.twins = runner
+    app.state.startup_hooks.append(runner.start)
+    app.state.shutdown_hooks.append(runner.stop)
+
+
 class HealthRead(BaseModel):
     status: Literal["ok", "error"]
     db: str
@@ -169,10 +185,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.login_limiter = LoginLimiter(settings.login_max_failures, settings.login_window_s)
     app.state.startup_hooks = []
     app.state.shutdown_hooks = []
+    _twins(app)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
     app.add_middleware(SecurityHeaders)
     errors.install(app)
-    for module in (auth, experiments, trials, workers):
+    for module in (auth, experiments, trials, workers, sim_prior):
         app.include_router(module.router, prefix="/api", responses=errors.ERROR_RESPONSES)
 
     @app.get(

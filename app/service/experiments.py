@@ -193,6 +193,10 @@ def create_experiment(
         after="active",
         detail={"name": exp.name, "task": exp.task, "target": exp.target},
     )
+    if spec.sim_prior_experiment_id is not None:  # checked like a later link (422: what differs)
+        from app.service.sim_prior import link
+
+        link(session, exp.id, spec.sim_prior_experiment_id, actor=actor)
     session.flush()
     return exp
 
