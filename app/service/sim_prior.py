@@ -1,6 +1,7 @@
 """A hardware experiment's sim prior: a linked sim experiment of the same task, policy
-(P, H, release step) and command hold, whose scored trials the hardware optimiser also
-learns from (``app.optim.PriorData`` in its ``OptimizerSpec``).
+(P, H, release step and the pressure limits its levels span) and command hold, whose scored
+trials the hardware optimiser also learns from (``app.optim.PriorData`` in its
+``OptimizerSpec``).
 
 Linking is refused, with every difference in the operator's words, unless the two
 experiments describe the same motion: a prior from another task, another policy grid or
@@ -21,6 +22,7 @@ from sqlalchemy.orm import Session
 from app.db.models import Experiment, Trial
 from app.db.session import Database
 from app.optim import OptimizerSpec, PriorData
+from app.policy import SIM_MAX_PRESSURE_PA
 from app.service import lifecycle as lc
 from app.service.audit import record
 from app.service.auth import Actor
@@ -29,6 +31,7 @@ from app.service.experiments import create_experiment, get_experiment, read_expe
 from app.service.schemas import (
     ExperimentCreate,
     ExperimentRead,
+    LimitsIn,
     SimPriorRead,
     SimPriorStarted,
     SimPriorStartIn,
@@ -59,12 +62,42 @@ def differences(hw: Experiment, sim: Experiment) -> list[str]:
     if hw.with_release != sim.with_release:
         here, there = ("learned", "not") if hw.with_release else ("not", "learned")
         out.append(f"the release step differs ({here} here, {there} there)")
+    if _limits(hw) != _limits(sim):
+        out.append(
+            f"the pressure limits differ ({_limits_words(hw)} here, {_limits_words(sim)} "
+            "there: the same θ would be other pressures)"
+        )
     if hw.command_hold != sim.command_hold:
         out.append(
             f"the command hold differs ({_HOLD_WORDS.get(hw.command_hold, hw.command_hold)} "
             f"here, {_HOLD_WORDS.get(sim.command_hold, sim.command_hold)} there)"
         )
     return out
+
+
+def _limits(exp: Experiment) -> tuple[Any, ...] | None:
+    """The limits θ's levels are spread over (rounded to 1 mPa), None: the simulator's range."""
+    if exp.limits_nominal_pa is None:
+        return None
+    return (
+        tuple(round(float(v), 3) for v in exp.limits_nominal_pa),
+        round(float(exp.limits_max_step_pa or 0.0), 3),
+        round(float(exp.limits_source_pa or 0.0), 3),
+    )
+
+
+def _limits_words(exp: Experiment) -> str:
+    if exp.limits_nominal_pa is None:
+        return f"the simulator's full range, 0 to {SIM_MAX_PRESSURE_PA / 1000:g} kPa"
+    nominal = sorted({float(v) for v in exp.limits_nominal_pa})
+    nom = (
+        f"{nominal[0] / 1000:g}"
+        if len(nominal) == 1
+        else "/".join(f"{v / 1000:g}" for v in nominal)
+    )
+    step = float(exp.limits_max_step_pa or 0.0) / 1000
+    source = float(exp.limits_source_pa or 0.0) / 1000
+    return f"nominal {nom} kPa ± {step:g} kPa, source {source:g} kPa"
 
 
 def check_linkable(hw: Experiment, sim: Experiment) -> None:
@@ -233,12 +266,12 @@ def start(
     actor: Actor,
     suggest: Callable[[int, int], list[Any]],
 ) -> SimPriorStarted:
-    """Create a sim experiment like the hardware one (same task, policy, hold, method and
-    seed; the paper-matching preset unless told), link it, then queue ``n_trials`` sim trials
-    for the sim workers through ``suggest(sim_experiment_id, n)`` (the usual suggestion: its
-    first ``n_trials`` are its initial design). The experiment and the link are stored in one
-    transaction first; should the suggestion fail, the linked sim experiment is there without
-    trials and its page's Suggest queues them."""
+    """Create a sim experiment like the hardware one (same task, policy and limits, hold,
+    method and seed; the paper-matching preset unless told), link it, then queue
+    ``n_trials`` sim trials for the sim workers through ``suggest(sim_experiment_id, n)``
+    (the usual suggestion: its first ``n_trials`` are its initial design). The experiment
+    and the link are stored in one transaction first; should the suggestion fail, the linked
+    sim experiment is there without trials and its page's Suggest queues them."""
     with db.write() as s:
         hw = get_experiment(s, experiment_id, for_update=True)
         if hw.target != "hardware":
@@ -263,6 +296,13 @@ def start(
             n_initial=max(2, body.n_trials),
             seed=hw.seed,
             optimizer_settings=dict(hw.optimizer_settings or {}),
+            limits=None
+            if hw.limits_nominal_pa is None
+            else LimitsIn(
+                nominal_pa=[float(v) for v in hw.limits_nominal_pa],
+                max_step_pa=float(hw.limits_max_step_pa or 0.0),
+                source_pa=float(hw.limits_source_pa or 0.0),
+            ),
             sim_preset=body.sim_preset or DEFAULT_PRESET,
             command_hold=hw.command_hold,  # type: ignore[arg-type]
             notes=f"sim prior of hardware experiment {hw.id} ({hw.name})",

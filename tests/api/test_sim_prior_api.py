@@ -24,7 +24,7 @@ def _nothing_left_queued(module_server):
 
 
 def test_linking_over_http(op, module_server, new_exp):
-    sim = new_exp(op, name="sim")
+    sim = new_exp(op, name="sim", limits=HARDWARE_LIMITS)
     hw = new_exp(op, name="hw", target="hardware", sim_prior_experiment_id=sim["id"])
     assert hw["sim_prior_experiment_id"] == sim["id"]
     n = len(op.list_experiments())

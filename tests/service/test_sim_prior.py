@@ -40,7 +40,7 @@ def _scored_sim(db, exp_id: int, n: int = 6, seed: int = 0) -> list[list[float]]
 
 
 def test_linking_a_matching_sim_experiment_is_accepted_and_audited(db, make_experiment):
-    sim = make_experiment(levels=3, sim_preset="fast")
+    sim = make_experiment(levels=3, sim_preset="fast", limits=LIMITS)
     hw = make_experiment(**HW)
     with db.write() as s:
         out = sim_prior.link(s, hw, sim, actor=OPERATOR)
@@ -77,6 +77,17 @@ def test_linking_a_matching_sim_experiment_is_accepted_and_audited(db, make_expe
             {},
             "the command hold differs (zero (each row held) here, linear (ramped) there)",
         ),
+        (
+            {"limits": None},
+            {},
+            "the pressure limits differ (nominal 100 kPa ± 30 kPa, source 205 kPa here, the "
+            "simulator's full range, 0 to 275.8 kPa there: the same θ would be other pressures)",
+        ),
+        (
+            {"limits": {**LIMITS, "max_step_pa": 20_000.0}},
+            {},
+            "(nominal 100 kPa ± 30 kPa, source 205 kPa here, nominal 100 kPa ± 20 kPa",
+        ),
         ({"target": "hardware"}, {}, "runs on hardware, not in simulation"),
         ({}, {"target": "sim"}, "runs in simulation: only a hardware experiment has one"),
     ],
@@ -84,7 +95,7 @@ def test_linking_a_matching_sim_experiment_is_accepted_and_audited(db, make_expe
 def test_linking_what_differs_is_refused_in_words(
     db, make_experiment, sim_fields, hw_fields, words
 ):
-    sim = make_experiment(**{"levels": 3, **sim_fields})
+    sim = make_experiment(**{"levels": 3, "limits": LIMITS, **sim_fields})
     hw = make_experiment(**{**HW, **hw_fields})
     with pytest.raises(InvalidInput, match="cannot be the sim prior") as err, db.write() as s:
         sim_prior.link(s, hw, sim, actor=OPERATOR)
@@ -114,7 +125,7 @@ def test_every_difference_is_named_at_once(db, make_experiment):
 
 
 def test_the_prior_reaches_the_optimiser_and_each_trial_says_what_it_leaned_on(db, make_experiment):
-    sim = make_experiment(levels=3)
+    sim = make_experiment(levels=3, limits=LIMITS)
     hw = make_experiment(sim_prior_experiment_id=sim, **HW)
     thetas = _scored_sim(db, sim, n=6)
     actor = OPERATOR
@@ -142,8 +153,12 @@ def test_the_prior_reaches_the_optimiser_and_each_trial_says_what_it_leaned_on(d
 
 
 def test_sim_trials_never_count_against_the_hardware_budget(db, make_experiment):
-    sim = make_experiment(levels=3)
-    hw = make_experiment(budget=2, sim_prior_experiment_id=sim, **{**HW, "method": "random"})
+    sim = make_experiment(levels=3, limits=LIMITS)
+    hw = make_experiment(
+        budget=2,
+        sim_prior_experiment_id=sim,
+        **{**HW, "method": "random", "optimizer_settings": {}},
+    )
     _scored_sim(db, sim, n=8)
     made = trials.suggest(db, hw, 2, actor=OPERATOR)
     assert [t.suggestion_basis["step"] for t in made] == ["prior", "prior"]  # warmstart
@@ -174,6 +189,7 @@ def test_start_one_creates_a_linked_sim_twin_experiment_with_queued_trials(db, m
         True,
     )
     assert (sim.command_hold, sim.sim_preset, sim.method) == ("linear", "fast", "bo-lei-default")
+    assert sim.limits == out.experiment.limits  # the same θ is the same pressures
     assert [t.status for t in out.queued] == ["queued"] * 4  # for the sim workers
     with pytest.raises(Conflict, match="already has sim experiment"):
         sim_prior.start(db, hw, SimPriorStartIn(n_trials=1), actor=OPERATOR, suggest=suggest)

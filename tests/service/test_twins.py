@@ -71,7 +71,7 @@ def test_a_hardware_trial_gets_its_planned_and_executed_twins(db, make_experimen
 
 
 def test_the_twin_runs_with_the_linked_sim_experiments_preset(db, make_experiment, make_trial):
-    sim = make_experiment(levels=3, sim_preset="reference")
+    sim = make_experiment(levels=3, sim_preset="reference", limits=LIMITS)
     hw = make_experiment(target="hardware", levels=3, limits=LIMITS, sim_prior_experiment_id=sim)
     t = make_trial(hw)
     calls = []

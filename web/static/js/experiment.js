@@ -3,7 +3,7 @@ import { SIM_MAX_PRESSURE_PA } from "/api-schema.js";
 import { renderTrialActions } from "./actions.js";
 import { bestSoFar, relevance, scheduleHeatmap, slices } from "./plots.js";
 import { closeUnlessFor } from "./viz.js";
-import { basisText, renderSimPrior } from "./twins.js";
+import { renderSimPrior } from "./twins.js";
 import { $, applyRole, badge, canWrite, download, el, fmt, fmtDuration, fmtPm, fmtTime, requireLogin, showError } from "./ui.js";
 
 const experimentId = window.HANDFUL.experimentId;
@@ -131,7 +131,6 @@ function renderNext() {
     t.predicted_mean !== null && t.predicted_mean !== undefined
       ? `GP predicts ${fmtPm(t.predicted_mean, t.predicted_std)} (mean ± std)`
       : "No GP prediction for this trial (random initial trial, or not a BO experiment).",
-    t.suggestion_basis ? el("div", { id: "next-basis", class: "small" }, `Suggested from ${basisText(t.suggestion_basis)}.`) : "",
     el("div", { id: "next-preview-summary", class: "small" }));
   scheduleHeatmap($("#heatmap"), t.pressure_schedule_pa, { title: `pressure schedule (kPa): 12 chambers × H steps, ${holdText(experiment)}`, releaseStep: t.release_step, ...boundsPa(experiment) });
   const best = incumbent();

@@ -97,11 +97,11 @@ export function hardwareVsTwin(node, rows, unit = "") {
     { type: "scatter", mode: "markers", name: "sim twin", x: twin.map((r) => r.index), y: twin.map((r) => r.twin.predicted_objective),
       marker: { size: 9, symbol: "diamond-open", color: "#d9480f", line: { width: 2 } },
       hovertemplate: `trial %{x}: twin %{y:.4g} ${unit}<extra></extra>` },
-    { type: "bar", name: "hardware − twin", x: gap.map((r) => r.index), y: gap.map((r) => r.discrepancy), yaxis: "y2",
+    { type: "bar", name: "hardware − twin", x: gap.map((r) => r.index), y: gap.map((r) => r.discrepancy), yaxis: "y2", width: 0.6,
       marker: { color: gap.map((r) => (r.discrepancy >= 0 ? "#2b8a3e" : "#c92a2a")) },
       hovertemplate: `trial %{x}: hardware − twin %{y:.3g} ${unit}<extra></extra>` },
   ], {
-    xaxis: { title: { text: "trial" }, anchor: "y2" },
+    xaxis: { title: { text: "trial" }, anchor: "y2", tickformat: "d" },
     yaxis: { title: { text: `objective${unit ? ` (${unit})` : ""}` }, domain: [0.4, 1] },
     yaxis2: { title: { text: "hardware − twin" }, domain: [0, 0.28], zeroline: true },
     legend: { orientation: "h", y: 1.14 },

@@ -40,11 +40,12 @@ export function gatePredictions(trial, experiment) {
   const unit = experiment.objective_unit || "";
   const gp = trial.predicted_mean !== null && trial.predicted_mean !== undefined
     ? `${fmtPm(trial.predicted_mean, trial.predicted_std)} ${unit} (mean ± std)` : "none (initial design, or not a BO experiment)";
-  const twinLine = el("dd", { id: "gate-twin" }, "being simulated…");
-  const box = el("dl", { class: "facts gate-predictions", id: "gate-predictions" },
-    el("dt", {}, "GP predicts"), el("dd", { id: "gate-gp" }, gp),
-    el("dt", {}, "Sim twin predicts"), twinLine,
-    el("dt", {}, "The suggestion leaned on"), el("dd", { id: "gate-basis" }, basisText(trial.suggestion_basis)));
+  const twinLine = el("span", { id: "gate-twin" }, "being simulated…");
+  const line = (label, value) => el("p", { class: "small gate-line" }, el("strong", {}, `${label}: `), value);
+  const box = el("div", { class: "gate-predictions", id: "gate-predictions" },
+    line("GP predicts", el("span", { id: "gate-gp" }, gp)),
+    line("Sim twin predicts", twinLine),
+    line("Suggested from", el("span", { id: "gate-basis" }, basisText(trial.suggestion_basis))));
   const poll = async () => {
     if (!box.isConnected && box.dataset.started) return;
     box.dataset.started = "1";
