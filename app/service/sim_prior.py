@@ -26,7 +26,7 @@ from app.policy import SIM_MAX_PRESSURE_PA
 from app.service import lifecycle as lc
 from app.service.audit import record
 from app.service.auth import Actor
-from app.service.errors import Conflict, InvalidInput
+from app.service.errors import Conflict, InvalidInput, NotFound
 from app.service.experiments import create_experiment, get_experiment, read_experiment, touch
 from app.service.schemas import (
     ExperimentCreate,
@@ -138,7 +138,7 @@ def link(
         raise InvalidInput("sim_prior_experiment_id: an experiment cannot be its own sim prior")
     try:
         sim = get_experiment(session, sim_experiment_id)
-    except Exception:
+    except NotFound:
         raise InvalidInput(
             f"sim_prior_experiment_id: there is no experiment {sim_experiment_id}"
         ) from None
