@@ -134,16 +134,11 @@ def _offline_docs(app: FastAPI) -> None:
 
 
 def _twins(app: FastAPI) -> None:
-    """Every hardware trial's sim twins, made in the compute processes by a background
-    thread (``app.service.twins``); started and stopped with the app."""
-    from app.service.twins import TwinJob, TwinRunner, simulate
+    """Every hardware trial's sim twins, made on a background thread of the server
+    (``app.service.twins``, like previews); started and stopped with the app."""
+    from app.service.twins import TwinRunner
 
-    compute: ComputeRunner = app.state.compute
-
-    def call(job: TwinJob) -> Any:
-        return compute.call(simulate, job, shard=job.experiment_id, what="the sim twin")
-
-    runner = TwinRunner(app.state.db, call, interval_s=app.state.settings.twin_interval_s)
+    runner = TwinRunner(app.state.db, None, interval_s=app.state.settings.twin_interval_s)
     app.state.twins = runner
     app.state.startup_hooks.append(runner.start)
     app.state.shutdown_hooks.append(runner.stop)

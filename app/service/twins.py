@@ -8,13 +8,16 @@ and the preset of its linked sim experiment (``app.service.sim_prior.twin_preset
 paper-matching ``fast`` without one), scored by the rule the sim workers use, so twin and
 sim prior are the same simulator.
 
-Where twins run: in the server's compute processes (``app.service.compute.ComputeRunner``,
-the experiment's shard), found by ``TwinRunner``, a background thread polling for hardware
-trials without their twins. Not as sim-worker leases, because a twin is not a trial (it must
-enter no sim experiment, no budget and no optimiser, and the worker protocol stays as it is);
-it must be there at the gate even when no sim worker is connected; and one rollout (~0.15 s
-with ``fast``) is the size of a GP fit, the work those processes already bound in time and
-keep off the server's own process (MuJoCo's stepping would hold the GIL against requests).
+Where twins run: in the server, on ``TwinRunner``'s own background thread (as previews run
+their rollouts on the server's threads), polling for hardware trials without their twins.
+Not as sim-worker leases, because a twin is not a trial (it must enter no sim experiment, no
+budget and no optimiser, and the worker protocol stays as it is) and it must be there at the
+gate even when no sim worker is connected. Not in the compute processes either (the first
+design): for an experiment whose optimiser runs inline (random, CEM) that started a compute
+process, torch's import and all, while a hardware trial ran, and the hardware worker's
+heartbeats on 1 s leases were starved (tests/workers/test_workers_e2e.py). One ``fast``
+rollout takes ~0.15 s; ``run_pending(call=...)`` still takes any runner (e.g.
+``ComputeRunner.call``) should twins grow costlier.
 """
 
 from __future__ import annotations
@@ -252,7 +255,7 @@ def run_pending(
 
 class TwinRunner:
     """Polls for missing twins every ``interval_s`` on a daemon thread and makes them with
-    ``call`` (the server's compute processes); ``start`` / ``stop`` are lifespan hooks."""
+    ``call`` (None: ``simulate`` on this thread); ``start`` / ``stop`` are lifespan hooks."""
 
     def __init__(self, db: Database, call: Call | None, *, interval_s: float = 1.0) -> None:
         self.db = db
