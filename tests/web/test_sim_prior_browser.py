@@ -23,7 +23,7 @@ QUICK = {"num_restarts": 2, "raw_samples": 64, "fit_maxiter": 20}
 def test_a_linked_sim_and_hardware_pair_on_the_standin(
     dashboard_server_factory: Any, page: Any, screenshots: Path
 ):
-    # one compute process: the suggestions and the twins share its warm torch and MuJoCo
+    # one compute process (one torch import) for both experiments' suggestions
     server = dashboard_server_factory(HANDFUL_TWIN_INTERVAL_S="0.3", HANDFUL_COMPUTE_WORKERS="1")
     api, worker = server.client("operator"), server.client("worker")
     other = api.create_experiment(name="sim P=5", task="tip_speed", levels=5, sim_preset="fast")
