@@ -278,6 +278,49 @@ class HandfulClient:
         """The experiment's change counter."""
         return int(self.request("GET", f"/api/experiments/{experiment_id}/version")["version"])
 
+    # --- sim prior and sim twins ---------------------------------------------------------------
+    def sim_prior(self, experiment_id: int) -> JSON:
+        """The linked sim experiment, its scored and pending trials, the twins' preset."""
+        return self.request("GET", f"/api/experiments/{experiment_id}/sim-prior")
+
+    def link_sim_prior(self, experiment_id: int, sim_experiment_id: int) -> JSON:
+        """Link a hardware experiment to a sim experiment (same task, policy, hold)."""
+        return self.request(
+            "PUT",
+            f"/api/experiments/{experiment_id}/sim-prior",
+            json={"sim_experiment_id": sim_experiment_id},
+        )
+
+    def unlink_sim_prior(self, experiment_id: int) -> JSON:
+        return self.request("DELETE", f"/api/experiments/{experiment_id}/sim-prior")
+
+    def start_sim_prior(self, experiment_id: int, **fields: Any) -> JSON:
+        """Create and link a sim experiment with ``n_trials`` queued trials (SimPriorStartIn)."""
+        return self.request(
+            "POST", f"/api/experiments/{experiment_id}/sim-prior/start", json=fields
+        )
+
+    def experiment_twins(self, experiment_id: int) -> list[JSON]:
+        """Each trial beside its sim twin and the discrepancy (hardware − twin)."""
+        return self.request("GET", f"/api/experiments/{experiment_id}/twins")
+
+    def trial_twins(self, trial_id: int) -> list[JSON]:
+        return self.request("GET", f"/api/trials/{trial_id}/twins")
+
+    def wait_twin(
+        self, trial_id: int, kind: str = "planned", *, timeout_s: float = 60.0, poll_s: float = 0.2
+    ) -> JSON:
+        """Poll until the trial's sim twin of ``kind`` is stored (TimeoutError after
+        ``timeout_s``)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            found = [t for t in self.trial_twins(trial_id) if t["kind"] == kind]
+            if found:
+                return found[0]
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"trial {trial_id} has no {kind} sim twin after {timeout_s} s")
+            time.sleep(poll_s)
+
     # --- trials ---------------------------------------------------------------------------------
     def get_trial(self, trial_id: int) -> JSON:
         """A trial with its measurements and audit trail."""

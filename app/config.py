@@ -95,6 +95,13 @@ class Settings(BaseSettings):
         120.0, gt=0, le=3600, description="a suggestion's (or GP view's) time budget; then 503"
     )
     compute_workers: int = Field(2, ge=1, le=64, description="processes running optimisers")
+    twin_interval_s: float = Field(
+        1.0,
+        gt=0,
+        le=3600,
+        description="how often the server looks for hardware trials "
+        "still without their sim twin (made in the compute processes), s",
+    )
 
     @property
     def db_url(self) -> str:

@@ -19,7 +19,7 @@ from sqlalchemy import text
 
 from app.api import errors
 from app.api.limits import BodySizeLimit, SecurityHeaders
-from app.api.routes import auth, drift, experiments, trials, workers
+from app.api.routes import auth, drift, experiments, sim_prior, trials, workers
 from app.config import Settings
 from app.db.session import Database
 from app.service.auth import LoginLimiter
@@ -133,6 +133,17 @@ def _offline_docs(app: FastAPI) -> None:
         )
 
 
+def _twins(app: FastAPI) -> None:
+    """Every hardware trial's sim twins, made on a background thread of the server
+    (``app.service.twins``, like previews); started and stopped with the app."""
+    from app.service.twins import TwinRunner
+
+    runner = TwinRunner(app.state.db, None, interval_s=app.state.settings.twin_interval_s)
+    app.state.twins = runner
+    app.state.startup_hooks.append(runner.start)
+    app.state.shutdown_hooks.append(runner.stop)
+
+
 class HealthRead(BaseModel):
     status: Literal["ok", "error"]
     db: str
@@ -169,10 +180,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.login_limiter = LoginLimiter(settings.login_max_failures, settings.login_window_s)
     app.state.startup_hooks = []
     app.state.shutdown_hooks = []
+    _twins(app)
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
     app.add_middleware(SecurityHeaders)
     errors.install(app)
-    for module in (auth, experiments, drift, trials, workers):
+    for module in (auth, experiments, drift, trials, workers, sim_prior):
         app.include_router(module.router, prefix="/api", responses=errors.ERROR_RESPONSES)
 
     @app.get(

@@ -1,5 +1,5 @@
-"""Tables: experiments, trials, measurements, artifacts, users, tokens, leases, confirmations,
-idempotency keys and the append-only audit log. Pressures in Pa, times UTC."""
+"""Tables: experiments, trials, sim twins, measurements, artifacts, users, tokens, leases,
+confirmations, idempotency keys and the append-only audit log. Pressures in Pa, times UTC."""
 
 from __future__ import annotations
 
@@ -99,6 +99,9 @@ class Experiment(Base):
     drift_baseline_n: Mapped[int] = mapped_column(Integer, default=3, server_default="3")
     #: the band's half-width in the objective's unit (None: 2 × the baseline's spread)
     drift_tolerance: Mapped[float | None] = mapped_column(Float)
+    #: a sim experiment of the same task, policy (P, H, release) and command hold whose scored
+    #: trials are this hardware experiment's sim prior (``app.service.sim_prior``); None: none
+    sim_prior_experiment_id: Mapped[int | None] = mapped_column(ForeignKey("experiments.id"))
     # bookkeeping
     budget: Mapped[int | None] = mapped_column(Integer)
     status: Mapped[str] = mapped_column(String(16), default="active")
@@ -156,6 +159,9 @@ class Trial(Base):
     n_measurements: Mapped[int] = mapped_column(Integer, default=0)
     predicted_mean: Mapped[float | None] = mapped_column(Float)
     predicted_std: Mapped[float | None] = mapped_column(Float)
+    #: what the optimiser's suggestion leaned on (``Optimizer.suggestion_basis()``: e.g. the
+    #: model, how many hardware and sim-prior observations); None for other trials
+    suggestion_basis: Mapped[dict[str, Any] | None] = mapped_column(JSON)
     confirmed_hash: Mapped[str | None] = mapped_column(String(64))
     confirmed_by: Mapped[str | None] = mapped_column(String(64))
     confirmed_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
@@ -171,6 +177,32 @@ class Trial(Base):
         back_populates="trial", order_by="Measurement.id"
     )
     artifacts: Mapped[list[Artifact]] = relationship(back_populates="trial", order_by="Artifact.id")
+
+
+class TrialTwin(Base):
+    """A hardware trial's sim twin: a simulated run of exactly its schedule (``kind``
+    "planned": before it runs, what the gate shows; "executed": what the robot ran), with the
+    experiment's command hold and the sim prior's preset (``app.service.twins``)."""
+
+    __tablename__ = "trial_twins"
+    __table_args__ = (UniqueConstraint("trial_id", "kind"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    trial_id: Mapped[int] = mapped_column(ForeignKey("trials.id", ondelete="CASCADE"), index=True)
+    kind: Mapped[str] = mapped_column(String(16))  # planned | executed
+    schedule_hash: Mapped[str] = mapped_column(String(64))  # app.policy.schedule_hash
+    sim_preset: Mapped[str] = mapped_column(String(32))
+    command_hold: Mapped[str] = mapped_column(String(16))
+    objective_rule: Mapped[str] = mapped_column(String(16))
+    #: the linked sim experiment whose preset the twin used (None: the paper-matching default)
+    sim_experiment_id: Mapped[int | None] = mapped_column(Integer)
+    status: Mapped[str] = mapped_column(String(16))  # done | error
+    error: Mapped[str | None] = mapped_column(Text)
+    predicted_objective: Mapped[float | None] = mapped_column(Float)
+    predicted_tip_speed: Mapped[float | None] = mapped_column(Float)  # m/s
+    bend_limit_hits: Mapped[list[int] | None] = mapped_column(JSON)  # joints 0..2
+    wall_s: Mapped[float | None] = mapped_column(Float)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
 
 
 class Measurement(Base):

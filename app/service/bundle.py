@@ -1,10 +1,11 @@
 """An experiment as one JSON bundle, and back: everything, for archiving or moving it.
 
 ``export_bundle`` carries every column of the experiment, its trials, raw measurements (who,
-when, unit, note, source; withdrawn and superseded ones too), previews, confirmations,
+when, unit, note, source; withdrawn and superseded ones too), previews, sim twins, confirmations,
 artifacts (the trajectory files themselves, base64) and its audit log. ``import_bundle``
 stores it as a new experiment (new ids, every reference mapped, corrections to the repeats
-they correct, files written, their SHA-256 checked) plus one audit row saying so.
+they correct, files written, their SHA-256 checked) plus one audit row saying so; its link
+to a sim prior (another experiment) is not carried over.
 Exporting the import again gives the same bundle but for ids, file paths and that audit
 row (tested).
 Leases and idempotency keys are operational state, not the experiment's record: left out.
@@ -30,6 +31,7 @@ from app.db.models import (
     Measurement,
     Preview,
     Trial,
+    TrialTwin,
 )
 from app.service.audit import json_safe, record
 from app.service.auth import Actor
@@ -44,6 +46,7 @@ _TABLE: dict[str, Table] = {
     "measurements": Measurement.__table__,
     "confirmations": Confirmation.__table__,
     "previews": Preview.__table__,
+    "twins": TrialTwin.__table__,
     "artifacts": Artifact.__table__,
     "audit": AuditLog.__table__,
 }
@@ -75,7 +78,7 @@ def export_bundle(session: Session, experiment_id: int, artifacts_dir: Path) -> 
         "experiment": experiment,
         "trials": trials,
     }
-    for name in ("measurements", "confirmations", "previews", "artifacts"):
+    for name in ("measurements", "confirmations", "previews", "twins", "artifacts"):
         table = _TABLE[name]
         bundle[name] = _rows(session, table, table.c.trial_id.in_(ids)) if ids else []
     for art in bundle["artifacts"]:
@@ -116,12 +119,15 @@ def import_bundle(
         raise InvalidInput(f"not a {FORMAT} version {VERSION}")
     try:
         exp_row = bundle["experiment"]
-        tables = {name: bundle[name] for name in _TABLE if name not in ("experiment", "previews")}
-        tables["previews"] = bundle.get("previews", [])  # bundles from before previews
+        optional = ("previews", "twins")  # bundles from before previews / sim twins
+        tables = {name: bundle[name] for name in _TABLE if name not in ("experiment", *optional)}
+        for name in optional:
+            tables[name] = bundle.get(name, [])
     except KeyError as exc:
         raise InvalidInput(f"the bundle lacks {exc}") from None
     exp_t = _TABLE["experiment"]
-    exp_id = _insert(session, exp_t, _values(exp_t, exp_row))
+    # its sim prior is another experiment, not in the bundle: the copy starts unlinked
+    exp_id = _insert(session, exp_t, _values(exp_t, exp_row, sim_prior_experiment_id=None))
     trial_map: dict[int, int] = {}
     trials_t = _TABLE["trials"]
     for t in tables["trials"]:
@@ -160,7 +166,7 @@ def import_bundle(
                 supersedes_id=None if old is None else measurement_map[int(old)],
             ),
         )
-    for name in ("confirmations", "previews"):
+    for name in ("confirmations", "previews", "twins"):
         table = _TABLE[name]
         for row in tables[name]:
             session.execute(insert(table).values(**_values(table, row, trial_id=trial_of(row))))

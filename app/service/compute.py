@@ -54,7 +54,9 @@ _fitted: OrderedDict[str, Any] = OrderedDict()
 
 
 def fit_key(inputs: Any) -> str:
-    """What a fitted model depends on: method, dim, seed, settings and observations in order."""
+    """What a fitted model depends on: method, dim, seed, settings, observations in order and
+    the sim prior's data (if any)."""
+    prior = inputs.spec.prior
     blob = json.dumps(
         [
             inputs.spec.method,
@@ -62,6 +64,7 @@ def fit_key(inputs: Any) -> str:
             inputs.spec.seed,
             sorted(inputs.spec.kwargs().items()),
             [[list(o.theta), o.value, o.sem] for o in inputs.observations],
+            None if prior is None else [prior.theta.tolist(), prior.objective.tolist()],
         ],
         default=str,
     )
@@ -81,13 +84,17 @@ def fitted(inputs: Any) -> Any | None:
     return _fitted.get(fit_key(inputs))
 
 
-def suggest_job(inputs: Any, n: int) -> tuple[Any, Any, Any, float]:
-    """``trials.ask`` in the compute process; its fitted optimiser is kept for ``/model``."""
+def suggest_job(inputs: Any, n: int) -> tuple[Any, Any, Any, float, dict[str, Any]]:
+    """``trials.ask`` in the compute process; its fitted optimiser is kept for ``/model``.
+    The last item: what the suggestion leaned on (``Optimizer.suggestion_basis()``)."""
     from app.service.trials import ask
 
     timings: dict[str, float] = {}
-    thetas, mean, std = ask(inputs, n, timings=timings, on_fitted=lambda o: remember(inputs, o))
-    return thetas, mean, std, timings.get("optimizer_s", 0.0)
+    basis: dict[str, Any] = {}
+    thetas, mean, std = ask(
+        inputs, n, timings=timings, on_fitted=lambda o: remember(inputs, o), basis=basis
+    )
+    return thetas, mean, std, timings.get("optimizer_s", 0.0), basis
 
 
 def model_job(inputs: Any, incumbent: list[float], n_points: int) -> tuple[dict[str, Any], bool]:

@@ -210,6 +210,10 @@ def create_experiment(
             **({"reference_every": exp.reference_every} if exp.reference_every else {}),
         },
     )
+    if spec.sim_prior_experiment_id is not None:  # checked like a later link (422: what differs)
+        from app.service.sim_prior import link
+
+        link(session, exp.id, spec.sim_prior_experiment_id, actor=actor)
     session.flush()
     return exp
 

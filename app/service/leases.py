@@ -38,6 +38,7 @@ from app.service.experiments import executed_theta, touch
 from app.service.measurements import check_value, store_measurement
 from app.service.schemas import ClaimIn, ClaimRead, ExperimentRead, LeaseRead, ResultIn, TrialRead
 from app.service.trials import check_schedule_safe
+from app.service.twins import twin_for_claim
 
 SYSTEM_ACTOR = "system"
 
@@ -295,6 +296,7 @@ def claim(
                 trial=TrialRead.build(trial, has_trajectory=False),
                 experiment=ExperimentRead.build(exp),
                 lease_expires_at=lease.expires_at,
+                twin=twin_for_claim(session, trial.id) if exp.target == "hardware" else None,
             )
         )
     session.flush()

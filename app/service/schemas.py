@@ -161,6 +161,14 @@ class ExperimentCreate(_In):
     reference: ReferenceIn | None = Field(
         None, description="hardware only: a drift check (a reference θ every k trials)"
     )
+    sim_prior_experiment_id: int | None = Field(
+        None,
+        ge=1,
+        le=2**63 - 1,
+        description="hardware only: a sim experiment of the same task, policy (P, H, release "
+        "step) and command hold whose scored trials the optimiser also learns from (its sim "
+        "prior); refused with what differs",
+    )
 
 
 class ExperimentPatch(_In):
@@ -240,6 +248,8 @@ class ExperimentRead(BaseModel):
     reference: ReferenceRead | None = None
     #: reference trials (drift checks; not abandoned): they do not count against the budget
     n_reference_trials: int = 0
+    #: the linked sim experiment (its sim prior; hardware only), None without one
+    sim_prior_experiment_id: int | None = None
 
     @field_validator("objective_sources", mode="before")
     @classmethod
@@ -422,6 +432,11 @@ class TrialRead(BaseModel):
     n_measurements: int
     predicted_mean: float | None
     predicted_std: float | None
+    suggestion_basis: dict[str, Any] | None = Field(
+        None,
+        description="what the optimiser's suggestion leaned on (its model, how many hardware "
+        "and sim-prior observations); None for a trial the optimiser did not suggest",
+    )
     confirmed_hash: str | None
     confirmed_by: str | None
     confirmed_at: datetime | None
@@ -500,11 +515,38 @@ class PreviewRead(BaseModel):
     previewed_at: datetime
 
 
+class TwinRead(BaseModel):
+    """A hardware trial's sim twin: a simulated run of exactly its planned (``kind``
+    "planned", before it runs) or executed schedule, with the experiment's command hold."""
+
+    model_config = ConfigDict(from_attributes=True)
+
+    trial_id: int
+    kind: Literal["planned", "executed"]
+    schedule_hash: str
+    sim_preset: str
+    command_hold: str
+    objective_rule: str
+    sim_experiment_id: int | None = Field(
+        description="the linked sim experiment whose preset it used; None: the default"
+    )
+    status: Literal["done", "error"]
+    error: str | None
+    predicted_objective: float | None
+    predicted_tip_speed: float | None = Field(description="the simulated peak tip speed, m/s")
+    bend_limit_hits: list[int] | None = Field(description="joints (0..2) that hit a bend limit")
+    wall_s: float | None
+    created_at: datetime
+
+
 class TrialDetail(TrialRead):
-    """A trial with its raw measurements, its previews and its audit trail."""
+    """A trial with its raw measurements, its previews, its sim twins and its audit trail."""
 
     measurements: list[MeasurementRead]
     previews: list[PreviewRead] = Field(default_factory=list)
+    twins: list[TwinRead] = Field(
+        default_factory=list, description="hardware: its sim twins (planned, executed)"
+    )
     audit: list[AuditRead]
 
     @classmethod
@@ -589,6 +631,57 @@ class ModelRead(BaseModel):
     )
 
 
+# --- sim prior and sim twins ----------------------------------------------------------------
+class SimPriorLinkIn(_In):
+    """Link a hardware experiment to a sim experiment of the same task, policy and hold."""
+
+    sim_experiment_id: int = Field(ge=1, le=2**63 - 1)
+
+
+class SimPriorStartIn(_In):
+    """Start a sim prior: a new sim experiment like this hardware one, linked, its first
+    trials queued for the sim workers."""
+
+    n_trials: int = Field(24, ge=1, le=100, description="sim trials to queue now")
+    sim_preset: str | None = Field(
+        None, max_length=32, description="default: the paper-matching preset (fast)"
+    )
+    name: str | None = Field(None, min_length=1, max_length=200)
+
+
+class SimPriorRead(BaseModel):
+    """A hardware experiment's sim prior: the linked sim experiment and what it has scored."""
+
+    experiment_id: int
+    sim_experiment_id: int | None
+    sim_experiment_name: str | None = None
+    sim_preset: str | None = None
+    n_scored: int = Field(0, description="sim trials with an objective: the prior's data")
+    n_pending: int = Field(0, description="sim trials still to run")
+    best_objective: float | None = None
+    twin_preset: str = Field(description="the preset this experiment's sim twins run with")
+    twin_objective_rule: str
+
+
+class SimPriorStarted(BaseModel):
+    experiment: ExperimentRead
+    sim_experiment: ExperimentRead
+    queued: list[TrialRead]
+
+
+class TwinComparisonRead(BaseModel):
+    """One hardware trial beside its sim twin: what the robot scored, what the twin predicted
+    (of what the robot executed when it ran, else of the plan) and the difference."""
+
+    trial_id: int
+    index: int
+    status: str
+    objective: float | None
+    objective_sem: float | None
+    twin: TwinRead | None
+    discrepancy: float | None = Field(description="hardware objective − twin's prediction")
+
+
 # --- workers, leases, results ----------------------------------------------------------------
 class ClaimIn(_In):
     worker_id: str = Field(min_length=1, max_length=128)
@@ -601,6 +694,9 @@ class ClaimRead(BaseModel):
     trial: TrialRead
     experiment: ExperimentRead
     lease_expires_at: datetime
+    twin: TwinRead | None = Field(
+        None, description="hardware: the sim twin of the schedule about to run, if ready"
+    )
 
 
 class LeaseRead(BaseModel):

@@ -50,6 +50,7 @@ from app.service.experiments import (
     touch,
 )
 from app.service.schemas import ResolveIn, TrialDetail, TrialRead
+from app.service.sim_prior import basis_of_trial, with_prior
 
 
 # --- reading ---------------------------------------------------------------------------------
@@ -96,7 +97,12 @@ def read_trial(session: Session, trial_id: int) -> TrialDetail:
     previews = list(
         session.scalars(select(Preview).where(Preview.trial_id == trial.id).order_by(Preview.id))
     )
-    return TrialDetail.build_detail(trial, audit, previews)
+    out = TrialDetail.build_detail(trial, audit, previews)
+    if trial.experiment.target == "hardware":
+        from app.service.twins import twins_of
+
+        out.twins = twins_of(session, trial.id)
+    return out
 
 
 def list_trials(
@@ -227,6 +233,7 @@ def _new_trial(
     predicted: tuple[float, float] | None = None,
     initial_status: str | None = None,
     ceilings: HardwareCeilings | None = None,
+    suggestion_basis: dict[str, Any] | None = None,
 ) -> Trial:
     """Create a trial (proposed), then move it on: sim → queued, hardware → awaiting."""
     th, schedule, release = decode_checked(policy_of(exp), theta)
@@ -244,6 +251,7 @@ def _new_trial(
         release_step=release,
         predicted_mean=None if predicted is None else float(predicted[0]),
         predicted_std=None if predicted is None else float(predicted[1]),
+        suggestion_basis=suggestion_basis,
         n_measurements=0,
         attempts=0,
         created_by=actor.username,
@@ -338,7 +346,7 @@ def optimizer_inputs(session: Session, exp: Experiment) -> OptimizerInputs:
             pending.append(t.theta)
         else:
             obs.append(Observation(tuple(float(v) for v in t.theta), penalty, None))
-    spec = optimizer_spec(exp)
+    spec = with_prior(session, exp, optimizer_spec(exp))  # + the linked sim experiment's data
     return OptimizerInputs(
         spec=spec,
         observations=obs,
@@ -367,18 +375,24 @@ def ask(
     *,
     timings: dict[str, float] | None = None,
     on_fitted: Callable[[Any], None] | None = None,
+    basis: dict[str, Any] | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """(n, D) suggested θ, and the model's predicted mean/std there (None before a GP).
 
     ``timings`` (if given) accumulates ``optimizer_s``: the seconds spent in build_optimizer +
     observe_many + suggest, i.e. what the raw optimiser costs on this data. ``on_fitted``
     (if given) gets the optimiser after its suggestion (``app.service.compute`` keeps it).
+    ``basis`` (if given) is filled with ``Optimizer.suggestion_basis()``: what the
+    suggestion leaned on.
     """
     t0 = time.perf_counter()
     opt = rebuild_optimizer(inputs)
     thetas = np.asarray(opt.suggest(n, pending=inputs.pending), dtype=np.float64).reshape(n, -1)
     if timings is not None:
         timings["optimizer_s"] = timings.get("optimizer_s", 0.0) + time.perf_counter() - t0
+    if basis is not None:
+        basis.clear()
+        basis.update(opt.suggestion_basis())
     mean = std = None
     # Predict only once the optimiser has a model (past its initial design): then the GP it
     # just fitted for the suggestion is reused and the prediction costs next to nothing.
@@ -458,18 +472,21 @@ def suggest(
     actor: Actor,
     timings: dict[str, float] | None = None,
     ceilings: HardwareCeilings | None = None,
-    asker: Callable[[OptimizerInputs, int], tuple[Any, Any, Any, float]] | None = None,
+    asker: Callable[[OptimizerInputs, int], tuple[Any, ...]] | None = None,
 ) -> list[TrialRead]:
     """Ask the optimiser for ``n`` trials given the completed and pending ones; store them.
 
-    ``asker(inputs, n) -> (thetas, mean, std, optimizer_s)`` runs the optimiser (the server
-    passes ``ComputeRunner``'s, bounded in time); by default ``ask`` in this thread.
+    ``asker(inputs, n) -> (thetas, mean, std, optimizer_s[, basis])`` runs the optimiser (the
+    server passes ``ComputeRunner``'s, bounded in time); by default ``ask`` in this thread.
+    Each trial stores what its suggestion leaned on (``suggestion_basis``: the optimiser's
+    ``suggestion_basis()``, its own step, and the linked sim experiment).
 
     The optimiser runs outside the write lock (a GP fit takes seconds; workers keep
     reporting meanwhile). Before storing, the data is compared with what the optimiser saw:
     a trial added meanwhile (another suggest or attach) always forces a recompute, so two
     suggestions never ignore each other; new observations force one for up to 3 rounds.
     """
+    basis: dict[str, Any] = {}  # what the last suggestion leaned on (each ask replaces it)
     for attempt in range(8):
         with db.read() as s:
             exp = get_experiment(s, experiment_id)
@@ -479,8 +496,10 @@ def suggest(
 
         def ask_once(inp: OptimizerInputs, k: int) -> tuple[Any, Any, Any]:
             if asker is None:
-                return ask(inp, k, timings=timings)
-            thetas, mean, std, opt_s = asker(inp, k)
+                return ask(inp, k, timings=timings, basis=basis)
+            thetas, mean, std, opt_s, *more = asker(inp, k)
+            basis.clear()
+            basis.update(more[0] if more and more[0] else {})
             if timings is not None:
                 timings["optimizer_s"] = timings.get("optimizer_s", 0.0) + opt_s
             return thetas, mean, std
@@ -525,6 +544,7 @@ def suggest(
                         index=index,
                         predicted=predicted,
                         ceilings=ceilings,
+                        suggestion_basis=basis_of_trial(basis, i, exp),
                     )
                 )
                 index += 1

@@ -157,3 +157,23 @@ def gate_hardware_trial(
         nominal_pa=np.asarray(policy.limits.nominal_pa, dtype=np.float64),
         command_hold=str(hold),
     )
+
+
+def predictions_line(claim: Mapping[str, Any]) -> str:
+    """What the GP and the sim twin predict for a claimed trial, side by side, for the
+    worker's log at the gate (informative only: neither is a safety check)."""
+    trial = claim.get("trial") or {}
+    mean, std = trial.get("predicted_mean"), trial.get("predicted_std")
+    gp = "no GP prediction" if mean is None else f"GP predicts {mean:.4g} ± {std or 0.0:.2g}"
+    twin = claim.get("twin")
+    if not twin:
+        return f"{gp}; no sim twin yet"
+    if twin.get("status") != "done":
+        return f"{gp}; sim twin failed: {twin.get('error')}"
+    hits = twin.get("bend_limit_hits") or []
+    bends = f"bend limit hit at joint {', '.join(map(str, hits))}" if hits else "no bend limit hit"
+    return (
+        f"{gp}; sim twin ({twin.get('sim_preset')}, {twin.get('command_hold')} hold) predicts "
+        f"{twin.get('predicted_objective'):.4g}, tip speed {twin.get('predicted_tip_speed'):.3g} "
+        f"m/s, {bends}"
+    )

@@ -26,7 +26,7 @@ from app.workers.common import (
     retry,
 )
 from app.workers.drivers.base import Driver, DriverCommand, Execution
-from app.workers.gate import SafetyRefusal, gate_hardware_trial
+from app.workers.gate import SafetyRefusal, gate_hardware_trial, predictions_line
 from app.workers.objective import tip_speed_from_tracking
 from app.workers.sim import _heartbeat_period
 
@@ -73,7 +73,12 @@ def execute_claim(driver: Driver, claim: dict[str, Any]) -> HardwareOutcome:
             None,
             None,
         )
-    log.info("running trial %s on driver %s", command.trial_id, getattr(driver, "name", "?"))
+    log.info(
+        "running trial %s on driver %s (%s)",
+        command.trial_id,
+        getattr(driver, "name", "?"),
+        predictions_line(claim),
+    )
     try:
         execution = driver.execute(command)
     except Exception as exc:

@@ -202,3 +202,29 @@ def test_unknown_command_hold_is_refused_and_a_known_one_reaches_the_driver():
     assert gate_hardware_trial(trial, experiment).command_hold == "zero"  # older servers
     with pytest.raises(SafetyRefusal, match="unknown command hold 'cubic'"):
         gate_hardware_trial(trial, {**experiment, "command_hold": "cubic"})
+
+
+def test_the_gate_log_puts_the_twin_beside_the_gp():
+    from app.workers.gate import predictions_line
+
+    twin = {
+        "status": "done",
+        "sim_preset": "fast",
+        "command_hold": "linear",
+        "predicted_objective": 1.4866,
+        "predicted_tip_speed": 1.4866,
+        "bend_limit_hits": [0, 2],
+    }
+    trial = {"predicted_mean": 1.2, "predicted_std": 0.31}
+    line = predictions_line({"trial": trial, "twin": twin})
+    assert line == (
+        "GP predicts 1.2 ± 0.31; sim twin (fast, linear hold) predicts 1.487, tip speed 1.49 "
+        "m/s, bend limit hit at joint 0, 2"
+    )
+    assert predictions_line({"trial": {"predicted_mean": None}}) == (
+        "no GP prediction; no sim twin yet"
+    )
+    failed = {"status": "error", "error": "simulation diverged"}
+    assert predictions_line({"trial": trial, "twin": failed}).endswith(
+        "sim twin failed: simulation diverged"
+    )

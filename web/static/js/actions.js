@@ -2,6 +2,7 @@
 import { api, newIdempotencyKey } from "./api.js";
 import { canWrite, el, fmt, fmtDuration, fmtTime } from "./ui.js";
 import { openPreview, openReplay } from "./viz.js";
+import { gatePredictions } from "./twins.js";
 
 const PRE_RUN = new Set(["proposed", "awaiting_confirmation", "queued"]);
 const MEASURABLE = new Set(["queued", "running", "completed", "needs_review"]);
@@ -228,6 +229,7 @@ function buildTrialActions(container, trial, ctx) {
     } }, "Confirm safety & queue");
     const mine = (trial.previews || []).filter((p) => p.schedule_hash === trial.schedule_hash);
     container.append(box(`Safety gate: trial ${trial.index}`,
+      gatePredictions(trial, experiment),
       el("p", { class: "small muted" }, `You confirm exactly this schedule (hash ${String(trial.schedule_hash || "?").slice(0, 12)}…); any change needs a new confirmation.`),
       el("p", { class: "small", id: "preview-state" }, mine.length
         ? `Previewed by ${mine.map((p) => `${p.previewed_by} (${fmtTime(p.previewed_at)})`).join(", ")}.`

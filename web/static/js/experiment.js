@@ -3,6 +3,7 @@ import { SIM_MAX_PRESSURE_PA } from "/api-schema.js";
 import { renderTrialActions } from "./actions.js";
 import { bestSoFar, driftChart, relevance, scheduleHeatmap, slices } from "./plots.js";
 import { closeUnlessFor } from "./viz.js";
+import { renderSimPrior } from "./twins.js";
 import { $, applyRole, badge, canWrite, download, el, fmt, fmtDuration, fmtPm, fmtTime, requireLogin, showError } from "./ui.js";
 
 const experimentId = window.HANDFUL.experimentId;
@@ -257,6 +258,7 @@ async function refresh(force = false) {
     renderModel();
     renderDrift();
     renderAudit();
+    renderSimPrior(experiment, (msg) => { say(msg); refresh(true); });
     showError("#exp-error", null);
   } catch (err) {
     showError("#exp-error", err);

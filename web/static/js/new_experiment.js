@@ -9,6 +9,8 @@ function updateDependent() {
   const hw = $("#f-target").value === "hardware";
   $("#limits-fieldset").disabled = !hw;
   $("#limits-fieldset").classList.toggle("muted", !hw);
+  $("#sim-prior-fieldset").disabled = !hw;
+  $("#sim-prior-fieldset").classList.toggle("muted", !hw);
   const h = parseInt($("#f-horizon").value, 10) || 10;
   const release = RELEASE_TASKS.includes(task);
   const d = h + (release ? 1 : 0);
@@ -72,6 +74,7 @@ function collect() {
   };
   // imported observations always count: they are what the operator chose to import
   if ($("#f-objective_sources").value) body.objective_sources = [$("#f-objective_sources").value, "imported"];
+  if (target === "hardware" && $("#f-sim_prior").value) body.sim_prior_experiment_id = Number($("#f-sim_prior").value);
   if (!body.name) errors.name = "give the experiment a name";
   // the API's rules, in the form's own words and units
   if (body.method.startsWith("bo-") && Number.isInteger(body.n_initial) && Number.isInteger(body.budget) && body.n_initial > body.budget) {
@@ -151,4 +154,17 @@ requireLogin().then((me) => {
     return;
   }
   updateDependent();
+  loadSimExperiments();
 });
+
+/** The sim experiments a hardware experiment may take as its sim prior (the server checks
+ * that task, policy and hold match, and says what differs). */
+async function loadSimExperiments() {
+  try {
+    const all = await api("GET", "/api/experiments");
+    $("#f-sim_prior").append(...all.filter((x) => x.target === "sim").map((x) => el("option", { value: x.id },
+      `#${x.id} ${x.name} (${x.task}, P = ${x.levels}, H = ${x.horizon}${x.with_release ? " + release" : ""}, ${x.command_hold} hold)`)));
+  } catch (err) {
+    $("#f-sim_prior").title = `Sim experiments not listed: ${err.message}`;
+  }
+}

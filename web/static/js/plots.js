@@ -119,3 +119,30 @@ export function driftChart(node, drift) {
   });
   return pts.length;
 }
+
+/** Hardware vs sim twin per trial (TwinComparisonRead rows): the robot's objective ± SEM and
+ * the twin's prediction (of what ran, else of the plan) above, their discrepancy below. */
+export function hardwareVsTwin(node, rows, unit = "") {
+  const sorted = rows.slice().sort((a, b) => a.index - b.index);
+  const hw = sorted.filter((r) => r.objective !== null && r.objective !== undefined);
+  const twin = sorted.filter((r) => r.twin && r.twin.status === "done" && r.twin.predicted_objective !== null);
+  const gap = sorted.filter((r) => r.discrepancy !== null && r.discrepancy !== undefined);
+  draw(node, [
+    { type: "scatter", mode: "markers", name: "hardware (± SEM)", x: hw.map((r) => r.index), y: hw.map((r) => r.objective),
+      error_y: { type: "data", array: hw.map((r) => r.objective_sem ?? 0), visible: true }, marker: { size: 9, color: "#1f5eea" },
+      hovertemplate: `trial %{x}: hardware %{y:.4g} ${unit}<extra></extra>` },
+    { type: "scatter", mode: "markers", name: "sim twin", x: twin.map((r) => r.index), y: twin.map((r) => r.twin.predicted_objective),
+      marker: { size: 9, symbol: "diamond-open", color: "#d9480f", line: { width: 2 } },
+      hovertemplate: `trial %{x}: twin %{y:.4g} ${unit}<extra></extra>` },
+    { type: "bar", name: "hardware − twin", x: gap.map((r) => r.index), y: gap.map((r) => r.discrepancy), yaxis: "y2", width: 0.6,
+      marker: { color: gap.map((r) => (r.discrepancy >= 0 ? "#2b8a3e" : "#c92a2a")) },
+      hovertemplate: `trial %{x}: hardware − twin %{y:.3g} ${unit}<extra></extra>` },
+  ], {
+    xaxis: { title: { text: "trial" }, anchor: "y2", tickformat: "d" },
+    yaxis: { title: { text: `objective${unit ? ` (${unit})` : ""}` }, domain: [0.4, 1] },
+    yaxis2: { title: { text: "hardware − twin" }, domain: [0, 0.28], zeroline: true },
+    legend: { orientation: "h", y: 1.14 },
+    annotations: sorted.length ? [] : [{ text: "no hardware trial yet", showarrow: false, xref: "paper", yref: "paper", x: 0.5, y: 0.7 }],
+  });
+  return gap.length;
+}

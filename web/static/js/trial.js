@@ -3,6 +3,7 @@ import { meanSem, parseValue, renderTrialActions } from "./actions.js";
 import { line, scheduleHeatmap } from "./plots.js";
 import { $, applyRole, canWrite, download, el, fmt, fmtDuration, fmtPm, fmtTime, requireLogin, showError } from "./ui.js";
 import { openReplay } from "./viz.js";
+import { basisText, twinText } from "./twins.js";
 
 const trialId = window.HANDFUL.trialId;
 let lastKey = null;
@@ -23,6 +24,8 @@ function renderFacts(t, e) {
     ...fact("Objective ± SEM", fmtPm(t.objective, t.objective_sem)),
     ...fact("Measurements", String(t.n_measurements ?? 0)),
     ...fact("GP prediction", t.predicted_mean !== null && t.predicted_mean !== undefined ? fmtPm(t.predicted_mean, t.predicted_std) : "—"),
+    ...(e.target === "hardware" ? twinFacts(t, e) : []),
+    ...fact("Suggestion leaned on", basisText(t.suggestion_basis)),
     ...fact("Status reason", t.status_reason || "—"),
     ...fact("θ planned", `[${(t.theta || []).map((v) => v.toFixed(4)).join(", ")}]`),
     ...fact("θ executed", t.executed_theta ? `[${t.executed_theta.map((v) => v.toFixed(4)).join(", ")}]` : "—"),
@@ -32,6 +35,18 @@ function renderFacts(t, e) {
     ...fact("Attempts", String(t.attempts ?? 0)),
     ...fact("Created", `${t.created_by || "?"}, ${fmtTime(t.created_at)}`),
     ...fact("Ran", `${fmtTime(t.started_at)} → ${fmtTime(t.finished_at)} (${fmtDuration(t.duration_s)})`));
+}
+
+/** The sim twins of a hardware trial: of its plan, and of what the robot executed. */
+function twinFacts(t, e) {
+  const byKind = Object.fromEntries((t.twins || []).map((x) => [x.kind, x]));
+  const out = fact("Sim twin of the plan", twinText(byKind.planned, e.objective_unit));
+  if (t.executed_pressure_schedule_pa) {
+    const ran = byKind.executed;
+    const gap = ran && ran.predicted_objective !== null && t.objective !== null ? `; hardware − twin ${fmt(t.objective - ran.predicted_objective)}` : "";
+    out.push(...fact("Sim twin of what ran", `${twinText(ran, e.objective_unit)}${gap}`));
+  }
+  return out;
 }
 
 function renderSchedules(t) {
@@ -133,7 +148,7 @@ async function renderTrajectory(t, e) {
 async function load(force = false) {
   try {
     const t = await api("GET", `/api/trials/${trialId}`);
-    const key = `${t.status}:${t.n_measurements}:${t.updated_at}:${(t.measurements || []).length}:${(t.measurements || []).filter((m) => m.withdrawn_at).length}`;
+    const key = `${t.status}:${t.n_measurements}:${t.updated_at}:${(t.measurements || []).length}:${(t.measurements || []).filter((m) => m.withdrawn_at).length}:${(t.twins || []).length}`;
     if (!force && key === lastKey) return;
     lastKey = key;
     const e = await api("GET", `/api/experiments/${t.experiment_id}`);
