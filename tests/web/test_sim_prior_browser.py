@@ -1,7 +1,8 @@
 """From simulation to the robot in Chromium (issue 18): a hardware experiment on the stand-in
 starts its sim prior, its sim trials run, the next suggestion leans on it, the safety gate
-shows the sim twin's prediction beside the GP's, and the experiment page plots hardware vs
-twin. A link whose task, policy or hold differs is refused on the new-experiment form."""
+shows the sim twin's prediction beside the GP's, the experiment page plots hardware vs
+twin, and a reference trial runs on schedule and the drift chart gains it. A link whose
+task, policy or hold differs is refused on the new-experiment form."""
 
 from __future__ import annotations
 
@@ -14,14 +15,18 @@ import pytest
 from app.workers.drivers.standin import StandinDriver
 from app.workers.hardware import HardwareWorker
 from tests.web.test_dashboard_browser import login
+from tests.web.test_drift_browser import run_until_reference_scored, standin_worker
 
 LIMITS = {"nominal_pa": 100_000.0, "max_step_pa": 30_000.0, "source_pa": 205_000.0}
 QUICK = {"num_restarts": 2, "raw_samples": 64, "fit_maxiter": 20}
+#: the stand-in worker process: no faults (a faulted trial waits for a person's review)
+STEADY = {"state_file": "", "preset": "fast", "fault_probability": "0"}
+STEADY["tracker_loss_probability"] = "0"
 
 
 @pytest.mark.slow
 def test_a_linked_sim_and_hardware_pair_on_the_standin(
-    dashboard_server_factory: Any, page: Any, screenshots: Path
+    dashboard_server_factory: Any, page: Any, screenshots: Path, tmp_path: Path
 ):
     # one compute process (one torch import) for both experiments' suggestions
     server = dashboard_server_factory(HANDFUL_TWIN_INTERVAL_S="0.3", HANDFUL_COMPUTE_WORKERS="1")
@@ -88,8 +93,13 @@ def test_a_linked_sim_and_hardware_pair_on_the_standin(
     assert row["twin"]["kind"] == "executed" and row["discrepancy"] is not None
     page.screenshot(path=str(screenshots / "sim_prior_experiment.png"), full_page=True)
 
-    # drift (issue 18): "a reference trial runs on schedule and its drift chart updates"
-    # belongs here, on this same pair, once scheduled reference trials are merged.
+    # a reference trial runs on schedule (every 2nd hardware trial: the incumbent, trial 1)
+    # on the real stand-in worker, and the page's drift chart gains it
+    api.set_reference(hw["id"], every=2)
+    with standin_worker(server, tmp_path, options=STEADY):
+        ref = run_until_reference_scored(page, api, hw["id"])
+    assert ref["source"] == "reference" and ref["index"] == 2 and ref["theta"] == t["theta"]
+    assert [p["index"] for p in api.drift(hw["id"])["points"]] == [2]
 
     page.goto(f"{server.url}/trials/{t['id']}")
     page.locator("#trial-facts").filter(has_text="Sim twin of what ran").wait_for()
