@@ -352,19 +352,24 @@ def _trial_costs(rows: Sequence[dict[str, Any]]) -> dict[tuple[str, str, int], n
 def projected_run_s(per_trial_s: np.ndarray, budget: int, *, grows: bool) -> float:
     """Seconds for one run of ``budget`` trials from a measured per-trial cost curve (trial
     1..n). Measured trials are summed as they are; beyond n, a method whose suggestion cost grows
-    with the data (``grows``: BO) follows a quadratic in the trial index fitted to the measured
-    curve (never below its last measured level), any other method its mean trial cost."""
+    with the data (``grows``: BO) follows a + b·i + c·i² with a, b, c ≥ 0, fitted to the medians
+    of ten equal slices of the measured curve (robust to a slow spell on a shared machine), never
+    below the last slice's median; any other method its median trial cost."""
+    from scipy.optimize import nnls
+
     n = len(per_trial_s)
     done = float(per_trial_s[: min(n, budget)].sum())
     if budget <= n:
         return done
     later = np.arange(n + 1, budget + 1, dtype=float)
+    slices = np.array_split(np.arange(n), min(10, n))
+    mid = np.array([float(np.mean(s + 1)) for s in slices])
+    med = np.array([float(np.median(per_trial_s[s])) for s in slices])
     if grows and n >= 30:
-        idx = np.arange(1, n + 1, dtype=float)
-        coef = np.polyfit(idx, per_trial_s, 2)
-        floor = float(np.mean(per_trial_s[-max(5, n // 10) :]))
-        return done + float(np.maximum(np.polyval(coef, later), floor).sum())
-    return done + float(np.mean(per_trial_s)) * len(later)
+        coef, _ = nnls(np.stack([np.ones_like(mid), mid, mid**2], axis=1), med)
+        model = coef[0] + coef[1] * later + coef[2] * later**2
+        return done + float(np.maximum(model, med[-1]).sum())
+    return done + float(np.median(per_trial_s)) * len(later)
 
 
 def lpt_makespan_s(run_s: Sequence[float], workers: int) -> float:
@@ -397,9 +402,9 @@ def projection_markdown(
         "",
         f"{seeds} seeds per (task, method, P), each run as long as its largest cell. Per-trial "
         "costs are this machine's measurements (shared, so on the high side); beyond the "
-        "measured trials BO follows a quadratic fitted to its measured cost curve, other "
-        "methods their mean trial cost. *borrowed*: no run of that P yet, the curve of the "
-        "same method at another P (or task) stands in.",
+        "measured trials BO follows a non-negative quadratic in the trial number fitted to "
+        "its measured cost curve, other methods their median trial cost. *borrowed*: no run "
+        "of that P yet, the curve of the same method at another P (or task) stands in.",
         "",
         "| Task | Method | P | Trials | measured trials | basis | s per run (projected) |",
         "|---|---|---:|---:|---:|---|---:|",

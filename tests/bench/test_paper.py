@@ -153,7 +153,11 @@ def test_projected_cost_sums_measured_trials_and_extends_bo_by_its_fitted_curve(
     i = np.arange(1, 101, dtype=float)
     truth = 1e-5 * np.arange(1, 501, dtype=float) ** 2 + 0.1
     got = paper.projected_run_s(1e-5 * i**2 + 0.1, 500, grows=True)
-    assert got == pytest.approx(truth.sum(), rel=1e-6)
+    assert got == pytest.approx(truth.sum(), rel=0.02)
+    # a stall of three slow trials on a shared machine does not make a flat BO curve explode
+    stalled = np.full(100, 0.5)
+    stalled[40:43] = 20.0
+    assert paper.projected_run_s(stalled, 500, grows=True) < 1.2 * (stalled.sum() + 400 * 0.5)
     assert paper.projected_run_s(1e-5 * i**2 + 0.1, 500, grows=False) < 0.5 * truth.sum()
     assert paper.lpt_makespan_s([10, 5, 5, 4], 2) == 14
     assert paper.lpt_makespan_s([10, 5, 5, 4], 48) == 10
