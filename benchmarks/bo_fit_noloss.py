@@ -24,7 +24,8 @@ import numpy as np
 from scipy.stats import ttest_ind
 
 from app.bench.cache import stored_rows
-from app.bench.specs import PAPER_COMMAND_HOLD, PAPER_OBJECTIVE_RULE, PAPER_PRESET, RunSpec
+from app.bench.specs import RunSpec
+from app.policy import PAPER_COMMAND_HOLD, PAPER_OBJECTIVE_RULE, PAPER_PRESET
 
 
 def runs(out: Path, task: str, levels: int, fit: str, seeds: int) -> list[list[dict]]:
