@@ -17,6 +17,7 @@ from app.db.models import Measurement, Trial
 from app.optim import OptimError, Surrogate
 from app.service import lifecycle as lc
 from app.service.auth import Actor
+from app.service.drift import incumbent
 from app.service.errors import InvalidInput
 from app.service.experiments import executed_theta, get_experiment, read_experiment, touch
 from app.service.measurements import check_value, store_measurement
@@ -210,15 +211,7 @@ def model_insight(
             slices=[],
             message="no completed trial with an objective yet",
         )
-    best = session.scalars(
-        select(Trial)
-        .where(
-            Trial.experiment_id == exp.id,
-            Trial.status == lc.COMPLETED,
-            Trial.objective.is_not(None),
-        )
-        .order_by(Trial.objective.desc(), Trial.index)
-    ).first()
+    best = incumbent(session, exp)
     assert best is not None
     theta = best.executed_theta if best.executed_theta is not None else best.theta
     inc = [float(v) for v in theta]

@@ -229,7 +229,8 @@ def _trial_rows(session: Session, exp: Experiment) -> list[Any]:
     )
 
 
-def _incumbent(session: Session, exp: Experiment) -> Trial | None:
+def incumbent(session: Session, exp: Experiment) -> Trial | None:
+    """The experiment's best completed, scored trial (the lowest index on ties), or None."""
     return session.scalars(
         select(Trial)
         .where(
@@ -260,7 +261,7 @@ def _theta_hash(exp: Experiment, theta: list[float]) -> str:
 def _paused_reason(session: Session, exp: Experiment) -> str:
     """Why no reference can be made now ("" when one can)."""
     if exp.reference_theta is None:
-        if exp.reference_theta_from == "incumbent" and _incumbent(session, exp) is None:
+        if exp.reference_theta_from == "incumbent" and incumbent(session, exp) is None:
             return "the first reference waits for a scored trial (the incumbent)"
         return ""
     if _theta_hash(exp, exp.reference_theta) in _abandoned_hashes(session, exp):
@@ -289,7 +290,7 @@ def plan_references(session: Session, exp: Experiment, n: int, *, actor: Actor) 
     if not any(before):
         return ReferencePlan(tuple(before), None)
     if exp.reference_theta is None:  # incumbent: freeze it now
-        best = _incumbent(session, exp)
+        best = incumbent(session, exp)
         assert best is not None  # _paused_reason said one exists
         exp.reference_trial_id = best.id
         exp.reference_theta = [float(v) for v in best.theta]
@@ -384,33 +385,25 @@ def _judge(exp: Experiment, rows: list[Any]) -> tuple[DriftBandRead | None, list
             and not baseline
             and abs(float(r.objective) - band.center) > band.half_width
         )
-        points.append(
-            DriftPointRead(
-                trial_id=r.id,
-                index=r.index,
-                objective=float(r.objective),
-                objective_sem=None if r.objective_sem is None else float(r.objective_sem),
-                finished_at=r.finished_at,
-                baseline=baseline,
-                outside=outside,
-            )
-        )
+        points.append(_point(r, baseline=baseline, outside=outside))
     return band, points
 
 
+def _point(r: Any, *, baseline: bool = False, outside: bool = False) -> DriftPointRead:
+    """A scored reference trial's row as the drift chart plots it."""
+    return DriftPointRead(
+        trial_id=r.id,
+        index=r.index,
+        objective=float(r.objective),
+        objective_sem=None if r.objective_sem is None else float(r.objective_sem),
+        finished_at=r.finished_at,
+        baseline=baseline,
+        outside=outside,
+    )
+
+
 def _earlier_points(rows: list[Any]) -> list[DriftPointRead]:
-    return [
-        DriftPointRead(
-            trial_id=r.id,
-            index=r.index,
-            objective=float(r.objective),
-            objective_sem=None if r.objective_sem is None else float(r.objective_sem),
-            finished_at=r.finished_at,
-            baseline=False,
-            outside=False,
-        )
-        for r in rows
-    ]
+    return [_point(r) for r in rows]
 
 
 def drift_view(session: Session, experiment_id: int) -> DriftRead:
