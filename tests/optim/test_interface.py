@@ -108,13 +108,13 @@ def test_one_rule_turns_a_method_and_the_policy_into_settings(method, settings, 
 
 def test_the_sweep_and_the_service_build_the_same_optimiser():
     """A sweep run and an experiment with the same method, P and seed suggest the same θ."""
-    from types import SimpleNamespace
-
     from app.bench import RunSpec
+    from app.db.models import Experiment
     from app.service.experiments import optimizer_spec
 
     run = RunSpec("bo-levels", "throw", 3, 4, 10)
-    exp = SimpleNamespace(
+    # an experiment row as stored (not added to any database): every column it has is read
+    exp = Experiment(
         method="bo-levels",
         levels=3,
         horizon=10,
