@@ -16,6 +16,7 @@ PAGES = (
     "paper",
     "optim",
     "redq",
+    "tables",
     "service",
     "load",
     "workers",
