@@ -1,6 +1,7 @@
 """What one REDQ episode costs on one core, against a `fast` rollout of the same task.
 
     nice -n 10 python benchmarks/redq_cost.py [--episodes 4] [--json out.json]
+        [--device cuda] [--batches 256] [--tasks hammer,throw]
 
 In one process, one torch thread, the paper-matching simulator settings (app.bench.PAPER_*):
 the median wall time of a bare ``rollout`` (fast preset) per task; of an environment episode
@@ -40,13 +41,17 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--episodes", type=int, default=4)
     ap.add_argument("--json", default=None)
+    ap.add_argument("--device", default="cpu", help="torch device of REDQ's networks")
+    ap.add_argument("--batches", default="256,64", help="batch sizes to time, e.g. 256")
+    ap.add_argument("--tasks", default="hammer,throw")
     args = ap.parse_args()
+    batches = [int(b) for b in args.batches.split(",")]
     torch.set_num_threads(1)
     sim = {"preset": PAPER_PRESET, "command_hold": PAPER_COMMAND_HOLD}
     rule = PAPER_OBJECTIVE_RULE
     rng = np.random.default_rng(0)
     out: dict[str, dict[str, float]] = {}
-    for task in ("hammer", "throw"):
+    for task in args.tasks.split(","):
         sched = rng.uniform(0, 1, (10, 12)) * 275_000.0
         release = 10 if task == "throw" else None
         roll = timed(
@@ -65,8 +70,9 @@ def main() -> None:
 
         env_ep = timed(env_episode, 7)
         row = {"rollout_s": roll, "env_episode_s": env_ep}
-        for label, batch in (("b256", 256), ("b64", 64)):
-            s = REDQSettings(pretrain_episodes=26, batch_size=batch)  # 260 transitions, then learn
+        for label, batch in ((f"b{b}", b) for b in batches):
+            # 260 transitions, then learn
+            s = REDQSettings(pretrain_episodes=26, batch_size=batch, device=args.device)
             agent = REDQAgent(env, s, seed=0)
             for _ in range(s.pretrain_episodes):
                 agent.run_episode()
@@ -82,8 +88,10 @@ def main() -> None:
                 f"redq_{label}_vs_rollout": total / roll,
                 f"redq_{label}_10k_h": (250 * env_ep + 9750 * total) / 3600,
             }
+        row["device"] = args.device  # type: ignore[assignment]
         out[task] = row
-        print(task, json.dumps({k: round(v, 4) for k, v in row.items()}), flush=True)
+        shown = {k: round(v, 4) if isinstance(v, float) else v for k, v in row.items()}
+        print(task, json.dumps(shown), flush=True)
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(out, fh, indent=1)

@@ -16,9 +16,10 @@ from typing import Any
 
 import numpy as np
 
-from app.bench.specs import SWEEP_METHODS, RunSpec
+from app.bench.specs import SWEEP_METHODS, RunSpec, check_rl_settings
 from app.bench.stats import best_at
 from app.optim import DEFAULT_METHOD, SettingsError
+from app.rl.settings import RL_METHODS
 
 PAPER_LEVELS = (2, 5, 7, 10)
 PAPER_TRIALS = (100, 500, 10_000)
@@ -204,11 +205,13 @@ def run_specs(
     command_hold: str,
     objective_rule: str,
     bo_settings: dict[str, Any] | None = None,
+    rl_settings: dict[str, Any] | None = None,
 ) -> list[RunSpec]:
     """One run per (task, method, P, seed) of ``cells``, as long as its largest cell.
 
-    ``bo_settings`` go to every BO method (e.g. ``{"fit_mode": "warm"}``); a run's cache key
-    carries them, so runs with other settings never mix.
+    ``bo_settings`` go to every BO method (e.g. ``{"fit_mode": "warm"}``), ``rl_settings`` to
+    REDQ (checked here: a bad one raises SettingsError); a run's cache key carries them (but
+    ``EXECUTION_SETTINGS``), so runs with other settings never mix.
     """
     if seeds < 1:
         raise SettingsError(f"seeds must be ≥ 1, got {seeds}")
@@ -218,7 +221,11 @@ def run_specs(
         longest[k] = max(longest.get(k, 0), c.trials)
     specs = []
     for (task, method, p), budget in longest.items():
-        settings = dict(bo_settings or {}) if method.startswith("bo-") else {}
+        if method in RL_METHODS:
+            settings = dict(rl_settings or {})
+            check_rl_settings(method, settings)
+        else:
+            settings = dict(bo_settings or {}) if method.startswith("bo-") else {}
         for s in range(seeds):
             specs.append(
                 RunSpec(

@@ -34,6 +34,11 @@ SWEEP_METHODS: tuple[str, ...] = (*METHODS, *RL_METHODS)
 RL_LEVELS = 0
 
 
+#: Settings that say where a run computes, not what it computes: not part of its cache key,
+#: so a REDQ run started with ``device=cpu`` can be continued with ``device=cuda``.
+EXECUTION_SETTINGS: frozenset[str] = frozenset({"device", "checkpoint_every"})
+
+
 @dataclass(frozen=True)
 class RunSpec:
     """One optimisation run: ``budget`` trials of ``method`` on ``task`` with P = ``levels``."""
@@ -57,13 +62,15 @@ class RunSpec:
     @property
     def key(self) -> str:
         """File-name stem of this run's cache (the budget is not part of it: longer runs reuse).
-        Settings without a label of their own add a short tag of them, so runs never mix."""
+        Settings without a label of their own add a short tag of them, so runs never mix;
+        ``EXECUTION_SETTINGS`` (where the run computes) are not part of it."""
         key = (
             f"{self.task}_P{self.levels}_{self.name}_s{self.seed}_{self.preset}"
             f"_{self.command_hold}_{self.objective_rule}"
         )
-        if self.settings and self.label is None:
-            blob = json.dumps(self.settings, sort_keys=True, default=str)
+        identity = {k: v for k, v in self.settings.items() if k not in EXECUTION_SETTINGS}
+        if identity and self.label is None:
+            blob = json.dumps(identity, sort_keys=True, default=str)
             key += "_" + hashlib.sha1(blob.encode()).hexdigest()[:8]
         return key
 

@@ -18,6 +18,7 @@ from app.cli.bench_optim import (
     PRESET,
     WORKERS,
     _fail,
+    _key_values,
     check_execution,
     sim_settings,
 )
@@ -49,6 +50,13 @@ def paper(
     address: str = ADDRESS,
     workers: int = WORKERS,
     progress: bool = typer.Option(True, "--progress/--no-progress", help="progress bars and ETA"),
+    redq: list[str] = typer.Option(
+        None,
+        "--redq",
+        help="a REDQ setting KEY=VALUE for the REDQ rows (repeatable), e.g. device=cuda or "
+        "batch_size=64; settings other than device and checkpoint_every give the runs their "
+        "own cache key",
+    ),
     cached_only: bool = typer.Option(
         False, "--cached-only", help="run nothing: write paper.md from the runs stored in DIR"
     ),
@@ -89,6 +97,7 @@ def paper(
             command_hold=command_hold,
             objective_rule=objective,
             bo_settings={"fit_mode": bo_fit},
+            rl_settings=_key_values("redq", redq or []),
         )
     except SettingsError as exc:
         _fail(str(exc))

@@ -196,7 +196,7 @@ class REDQAgent:
         self.buffer._random_state = state["buffer"]._random_state  # where its sampling was
         self.rng.bit_generator.state = state["rng"]
         np.random.set_state(state["np_global"])
-        torch.set_rng_state(state["torch"])
+        torch.set_rng_state(state["torch"].cpu())
         self.algorithm.critic_gradient_step = int(state["critic_steps"])
 
     def _compact_buffer(self) -> ReplayBuffer:
@@ -220,4 +220,4 @@ class REDQAgent:
 
     def restore(self, path: Path) -> None:
         """``load`` a checkpoint written by ``save``."""
-        self.load(torch.load(path, weights_only=False))
+        self.load(torch.load(path, weights_only=False, map_location=self.settings.device))

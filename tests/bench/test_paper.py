@@ -77,6 +77,20 @@ def test_runs_share_cells_and_bo_settings_key_their_caches():
     assert next(s for s in full if s.method == "cem").key == cem.key  # shared: same runs
 
 
+def test_redq_settings_key_runs_but_where_they_compute_does_not():
+    cells = paper.select(paper.grid(), ["method=redq", "task=hammer", "trials=500"])
+    sim = {"preset": "fast", "command_hold": "linear", "objective_rule": "published"}
+    plain = paper.run_specs(cells, seeds=1, **sim)[0]
+    on_gpu = paper.run_specs(cells, seeds=1, **sim, rl_settings={"device": "cuda"})[0]
+    often = paper.run_specs(cells, seeds=1, **sim, rl_settings={"checkpoint_every": 5})[0]
+    fewer = paper.run_specs(cells, seeds=1, **sim, rl_settings={"utd": 4})[0]
+    assert on_gpu.settings == {"device": "cuda"}  # the run is told where to compute ...
+    assert plain.key == on_gpu.key == often.key  # ... but continues the same cache
+    assert fewer.key != plain.key  # another algorithm: never mixed
+    with pytest.raises(SettingsError, match="utd"):
+        paper.run_specs(cells, seeds=1, **sim, rl_settings={"utd": 0})
+
+
 def _rows(method: str, task: str, levels: int, finals: list[float], n: int) -> list[dict]:
     """Result rows of one run per value in ``finals``: flat at 0 then ``final`` from trial n/2."""
     from app.bench import RunSpec
@@ -116,6 +130,9 @@ def test_cli_refuses_bad_cells_with_one_line(tmp_path):
         (["--cells", "method=redq", "--trials", "100"], "no cell of the paper's grid matches"),
         (["--bo-fit", "fast"], "--bo-fit must be warm or full"),
         (["--command-hold", "cubic"], "unknown --command-hold 'cubic'"),
+        (["--cells", "method=redq", "--redq", "utd=0"], "REDQ utd"),
+        (["--cells", "method=redq", "--redq", "observations=pixels"], "unknown observation set"),
+        (["--cells", "method=redq", "--redq", "utd"], "--redq takes KEY=VALUE"),
     ):
         res = handful("bench", "paper", *args, "--out", str(tmp_path / "o"), cwd=tmp_path)
         assert res.returncode == 2, (args, res.stderr)
