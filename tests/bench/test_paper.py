@@ -188,3 +188,51 @@ def test_projection_says_which_runs_are_measured_borrowed_or_missing():
     assert "throw/bo-lei/P=7" in text.split("Not projected")[1]
     # random: 8 (task, P) × 5 seeds × 5,000 s on one core
     assert "One core: **55.6 h** (40 runs)" in text
+
+
+def _flat(method: str, task: str, levels: int, finals: list[float], n: int) -> list[dict]:
+    """Result rows of one run per value in ``finals``: ``final`` from the first trial on."""
+    from app.bench import RunSpec
+
+    out = []
+    for seed, final in enumerate(finals):
+        raw = [
+            {"trial": t, "objective": final, "wall_s": 0.5, "theta": []} for t in range(1, n + 1)
+        ]
+        out += result_rows(RunSpec(method, task, levels, seed, n), raw)
+    return out
+
+
+def test_default_is_set_against_every_peer_with_welch_p_redq_at_each_p_and_10k_runs():
+    rows = (
+        _flat(DEFAULT_METHOD, "throw", 7, [40.0, 41.0, 42.0], 500)
+        + _flat("cem", "throw", 7, [28.0, 29.0, 30.0], 100)  # clearly behind: a lead
+        + _flat("bo-lei", "throw", 7, [39.0, 43.0, 40.0], 100)  # overlapping: not significant
+        + _flat("redq", "throw", 0, [13.0, 14.0], 500)  # no P: set against P=7
+        + _flat("random", "throw", 7, [45.0, 44.0], 10_000)  # its 10K beats the default's 500
+        + _flat(DEFAULT_METHOD, "throw", 2, [30.0], 100)  # one seed: no p-value
+        + _flat("cem", "throw", 2, [28.0, 29.0], 100)
+    )
+    found = {
+        (r["levels"], r["trials"], r["peer"], r["peer_trials"]): r
+        for r in paper.default_vs_peers(rows)
+    }
+    lead = found[(7, 100, "cem", 100)]
+    assert lead["diff"] == pytest.approx(12.0) and lead["p"] < 0.05
+    assert found[(7, 100, "bo-lei", 100)]["p"] > 0.05
+    assert found[(7, 500, "redq", 500)]["diff"] == pytest.approx(41.0 - 13.5)
+    assert found[(7, 500, "random", 10_000)]["diff"] == pytest.approx(41.0 - 44.5)
+    assert (7, 500, "random", 500) in found and (7, 100, "random", 100) in found
+    assert found[(2, 100, "cem", 100)]["p"] is None
+    assert not any(k[2] == DEFAULT_METHOD for k in found)
+    text = "\n".join(paper.default_vs_peers_markdown(rows))
+    assert "| throw | 7 | 100 | 41.00 (3) | cem | 100 | 29.00 (3) | +12.00 |" in text
+    assert "| throw | 7 | 500 | 41.00 (3) | random | 10,000 | 44.50 (2) | -3.50 |" in text
+    lines = {
+        ln.split("|")[5].strip() + "@" + ln.split("|")[6].strip(): ln
+        for ln in text.splitlines()
+        if ln.startswith("| throw | 7 |")
+    }
+    assert lines["cem@100"].endswith("| **lead** |")
+    assert lines["bo-lei@100"].endswith("| ahead |")
+    assert "**behind** (p < 0.05)" in lines["random@10,000"]
