@@ -19,6 +19,7 @@ import numpy as np
 from app.bench.specs import SWEEP_METHODS, RunSpec, check_rl_settings
 from app.bench.stats import best_at
 from app.optim import DEFAULT_METHOD, SettingsError
+from app.optim.baselines import PAPER_CEM_INIT_STD
 from app.rl.settings import RL_METHODS
 
 PAPER_LEVELS = (2, 5, 7, 10)
@@ -209,6 +210,7 @@ def run_specs(
 ) -> list[RunSpec]:
     """One run per (task, method, P, seed) of ``cells``, as long as its largest cell.
 
+    CEM runs with the paper's initial spread (``PAPER_CEM_INIT_STD``);
     ``bo_settings`` go to every BO method (e.g. ``{"fit_mode": "warm"}``), ``rl_settings`` to
     REDQ (checked here: a bad one raises SettingsError); a run's cache key carries them (but
     ``EXECUTION_SETTINGS``), so runs with other settings never mix.
@@ -224,6 +226,8 @@ def run_specs(
         if method in RL_METHODS:
             settings = dict(rl_settings or {})
             check_rl_settings(method, settings)
+        elif method == "cem":
+            settings = {"init_std": PAPER_CEM_INIT_STD}  # the paper's CEM (its constant's note)
         else:
             settings = dict(bo_settings or {}) if method.startswith("bo-") else {}
         for s in range(seeds):

@@ -70,7 +70,8 @@ def test_runs_share_cells_and_bo_settings_key_their_caches():
     }
     bo = next(s for s in specs if s.method == "bo-lei")
     cem = next(s for s in specs if s.method == "cem")
-    assert bo.settings == {"fit_mode": "warm"} and cem.settings == {}
+    assert bo.settings == {"fit_mode": "warm"}
+    assert cem.settings == {"init_std": pytest.approx(0.288675)}  # the paper's CEM: 1/√12
     assert (cem.command_hold, cem.objective_rule) == ("linear", "published")
     full = paper.run_specs(cells, seeds=1, **sim, bo_settings={"fit_mode": "full"})
     assert next(s for s in full if s.method == "bo-lei").key != bo.key  # never mixed

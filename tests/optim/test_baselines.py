@@ -54,6 +54,23 @@ def test_cem_starts_from_the_mean_of_d_plus_1_samples_with_a_box_wide_spread():
     np.testing.assert_allclose(std, elite.std(axis=0))
 
 
+def test_the_papers_cem_spreads_its_first_generation_like_the_uniform_box():
+    """σ₀ = 1/√12 (the paper's CEM) keeps most samples inside the box; σ₀ = 1 (the default)
+    puts most coordinates on its faces (bang-bang schedules)."""
+    from app.optim.baselines import PAPER_CEM_INIT_STD
+
+    faces = {}
+    for std in (PAPER_CEM_INIT_STD, 1.0):
+        cem = make_optimizer("cem", 11, seed=5, init_std=std)
+        first = cem.suggest(12)
+        cem.observe(first, [bumpy(x) for x in first])
+        pop = cem.suggest(50)
+        faces[std] = ((pop == 0) | (pop == 1)).mean()
+        if std == PAPER_CEM_INIT_STD:
+            assert 0.2 < pop.std() < 0.38  # about a uniform's 0.29 over the box
+    assert faces[PAPER_CEM_INIT_STD] < 0.15 and faces[1.0] > 0.5
+
+
 def test_random_search_is_uniform_and_reproducible():
     a = make_optimizer("random", 5, seed=1).suggest(200)
     b = make_optimizer("random", 5, seed=1).suggest(200)
