@@ -6,43 +6,20 @@ from __future__ import annotations
 import sqlite3
 
 from app.db.migrate import downgrade, upgrade
-
-NOW = "2026-01-01 00:00:00"
+from tests.db.legacy_rows import NOW, seed
+from tests.db.legacy_rows import rows as _rows
 
 
 def _seed(path) -> None:
-    c = sqlite3.connect(path)
-    for eid, target in ((1, "hardware"), (2, "sim")):
-        c.execute(
-            "INSERT INTO experiments (id, name, task, target, sim_preset, objective_unit, levels,"
-            " horizon, with_release, method, n_initial, seed, optimizer_settings, status, notes,"
-            " version, created_by, created_at, updated_at) VALUES (?, 'e', 'tip_speed', ?,"
-            " 'fast', 'm/s', 3, 10, 0, 'random', 3, 0, '{}', 'active', '', 1, 'x', ?, ?)",
-            (eid, target, NOW, NOW),
-        )
-    for tid, eid in ((1, 1), (2, 2), (3, 2)):
-        c.execute(
-            'INSERT INTO trials (id, experiment_id, "index", status, status_reason, source, note,'
-            " theta, pressure_schedule_pa, objective, n_measurements, attempts, created_by,"
-            " created_at, updated_at) VALUES (?, ?, ?, 'completed', '', 'optimizer', '', '[]',"
-            " '[]', 1.5, 0, 0, 'x', ?, ?)",
-            (tid, eid, tid, NOW, NOW),
-        )
-    c.execute(
-        "INSERT INTO measurements (id, trial_id, value, unit, note, source, created_by,"
-        " created_at) VALUES (1, 1, 1.5, 'm/s', '', 'tracker', 'x', ?)",
-        (NOW,),
+    seed(
+        path,
+        experiments=((1, "hardware"), (2, "sim")),
+        trials=((1, 1, "optimizer"), (2, 2, "optimizer"), (3, 2, "optimizer")),
+        measurements=((1, 1, "tracker"),),
+        task="tip_speed",
+        preset="fast",
+        unit="m/s",
     )
-    c.commit()
-    c.close()
-
-
-def _rows(path, sql: str) -> list[tuple]:
-    c = sqlite3.connect(path)
-    try:
-        return c.execute(sql).fetchall()
-    finally:
-        c.close()
 
 
 def _columns(path, table: str) -> set[str]:
