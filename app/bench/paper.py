@@ -486,7 +486,8 @@ def projection_markdown(
         "## Projected time for the whole grid",
         "",
         f"{seeds} seeds per (task, method, P), each run as long as its largest cell. Per-trial "
-        "costs are this machine's measurements (shared, so on the high side); beyond the "
+        "costs are the runs' own clocks, on the machines that ran them (shared, so on the high "
+        "side; a cache's COMPUTED_ELSEWHERE.txt names runs made on other machines); beyond the "
         "measured trials BO follows a non-negative quadratic in the trial number fitted to "
         "its measured cost curve, other methods their median trial cost. *borrowed*: no run "
         "of that P yet, the curve of the same method at another P (or task) stands in.",
