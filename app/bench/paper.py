@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from app.bench.specs import SWEEP_METHODS, RunSpec, check_rl_settings
-from app.bench.stats import best_at
+from app.bench.stats import best_at, welch_p
 from app.optim import DEFAULT_METHOD, SettingsError
 from app.optim.baselines import PAPER_CEM_INIT_STD
 from app.rl.settings import RL_METHODS
@@ -356,8 +356,6 @@ def default_vs_peers(
     over seeds, their difference and Welch's two-sided p (None with < 2 seeds a side). REDQ
     (no P) is set against the default at every P; the default's 500 trials also against CEM's
     and random search's 10K (``peer_trials``)."""
-    from scipy.stats import ttest_ind
-
     table = best_at(rows, sorted({*budgets, 10_000}))
     out = []
     for (task, method, p, n), ref in sorted(table.items()):
@@ -368,10 +366,7 @@ def default_vs_peers(
             if not ((k == n and q in (p, 0)) or (n == 500 and k == 10_000 and q == p)):
                 continue
             peer = table[(task, m, q, k)]
-            pval = None
-            if len(ref) >= 2 and len(peer) >= 2:
-                pval = float(ttest_ind(ref, peer, equal_var=False).pvalue)
-                pval = 1.0 if math.isnan(pval) else pval
+            pval = welch_p(ref, peer)
             out.append(
                 {
                     "task": task,

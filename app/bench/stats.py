@@ -52,23 +52,29 @@ def best_at(
     return out
 
 
+def welch_p(a: Sequence[float], b: Sequence[float]) -> float | None:
+    """Welch's two-sided t-test p of two samples; None with fewer than 2 values a side, 1.0
+    for identical constant samples."""
+    from scipy.stats import ttest_ind
+
+    if len(a) < 2 or len(b) < 2:
+        return None
+    pval = float(ttest_ind(a, b, equal_var=False).pvalue)
+    return 1.0 if math.isnan(pval) else pval
+
+
 def head_to_head(
     rows: Sequence[dict[str, Any]], budget: int, reference: str
 ) -> list[dict[str, Any]]:
     """``reference`` vs each other method after ``budget`` trials, per (task, P): means over
     seeds, their difference and Welch's two-sided t-test p-value (None with < 2 seeds a side)."""
-    from scipy.stats import ttest_ind
-
     table = best_at(rows, [budget])
     out = []
     for (task, method, p, _b), peer in sorted(table.items()):
         ref = table.get((task, reference, p, budget))
         if method == reference or not ref:
             continue
-        pval = None
-        if len(ref) >= 2 and len(peer) >= 2:
-            pval = float(ttest_ind(ref, peer, equal_var=False).pvalue)
-            pval = 1.0 if math.isnan(pval) else pval  # identical constant samples
+        pval = welch_p(ref, peer)
         out.append(
             {
                 "task": task,
