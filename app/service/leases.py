@@ -341,14 +341,7 @@ def heartbeat(
     lease.heartbeat_at = now
     lease.expires_at = now + timedelta(seconds=lease_seconds)
     session.flush()
-    return LeaseRead(
-        lease_id=lease.id,
-        trial_id=lease.trial_id,
-        worker_id=lease.worker_id,
-        status=lease.status,
-        attempt=lease.attempt,
-        lease_expires_at=lease.expires_at,
-    )
+    return LeaseRead.model_validate(lease)
 
 
 def _result_sha256(trial_id: int, body: ResultIn) -> str:

@@ -700,12 +700,16 @@ class ClaimRead(BaseModel):
 
 
 class LeaseRead(BaseModel):
-    lease_id: str
+    """A lease after a heartbeat, read from the ``Lease`` row (``LeaseRead.model_validate``)."""
+
+    model_config = ConfigDict(from_attributes=True)
+
+    lease_id: str = Field(validation_alias="id")
     trial_id: int
     worker_id: str
     status: str
     attempt: int
-    lease_expires_at: datetime
+    lease_expires_at: datetime = Field(validation_alias="expires_at")
 
 
 class ResultIn(_In):
