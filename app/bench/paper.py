@@ -277,14 +277,16 @@ def paper_markdown(
     """``paper.md``: the paper's two tables (and REDQ's) with handful's number beside each of
     the paper's: mean ± std (ddof 0) over the seeds run, the seed count, and ⚠ where the two
     means differ by more than two of the paper's standard deviations. Cells not chosen or not
-    yet run say so; nothing is extrapolated."""
+    yet run say so; nothing is extrapolated. ``rows`` may hold more runs than ``chosen``'s
+    (every run stored): their cells are shown too."""
     values = cell_values(rows, grid(available))
     chosen_set = set(chosen)
     lines = ["# The paper's tables, reproduced by handful", "", *header, ""]
     lines += [
         "Each cell: **handful** mean ± std (n seeds) | paper mean ± std. ⚠: the means differ by "
         "more than two of the paper's standard deviations. *not run*: the cell was not asked "
-        "for (`--cells`); *unfinished*: asked for, but no seed has reached its trial count yet.",
+        "for (`--cells`) and no stored run has reached it; *unfinished*: asked for, but no seed "
+        "has reached its trial count yet.",
         "",
     ]
     names = {**PAPER_METHODS, DEFAULT_METHOD: f"handful default ({DEFAULT_METHOD})"}
@@ -338,7 +340,7 @@ def paper_markdown(
         "| Task | Method | P | Trials | seeds | s per seed |",
         "|---|---|---:|---:|---:|---:|",
     ]
-    for c in sorted(chosen_set):
+    for c in sorted(chosen_set | {c for c, v in values.items() if v}):
         cost = cell_cost_s(rows, c)
         if cost:
             lines.append(

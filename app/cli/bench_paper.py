@@ -87,18 +87,21 @@ def paper(
     try:
         for t in terms:
             grid_mod.parse_term(t)
-        chosen = grid_mod.select(grid_mod.grid(METHODS), terms)
+        whole = grid_mod.grid(METHODS)
+        chosen = grid_mod.select(whole, terms)
         if not chosen:
             _fail(f"no cell of the paper's grid matches {' '.join(terms)}")
-        specs = grid_mod.run_specs(
-            chosen,
-            seeds=seeds,
-            preset=preset,
-            command_hold=command_hold,
-            objective_rule=objective,
-            bo_settings={"fit_mode": bo_fit},
-            rl_settings=_key_values("redq", redq or []),
-        )
+        settings = {
+            "seeds": seeds,
+            "preset": preset,
+            "command_hold": command_hold,
+            "objective_rule": objective,
+            "bo_settings": {"fit_mode": bo_fit},
+            "rl_settings": _key_values("redq", redq or []),
+        }
+        specs = grid_mod.run_specs(chosen, **settings)
+        # the tables show every run DIR holds with these settings, not only this slice's
+        stored_specs = grid_mod.run_specs(whole, **settings)
     except SettingsError as exc:
         _fail(str(exc))
     if cached_only:
@@ -111,13 +114,16 @@ def paper(
         runs = run_sweep(
             specs, out, backend=backend, address=address, workers=workers or None, progress=progress
         )
-    rows = [r for s in specs if s in runs for r in result_rows(s, runs[s])]
+        ran = {s.key for s in runs}
+        runs |= {s: r for s in stored_specs if s.key not in ran and (r := stored_rows(s, out))}
+    rows = [r for s, run in runs.items() for r in result_rows(s, run)]
     out.mkdir(parents=True, exist_ok=True)
     write_results_csv(out / "results.csv", rows)
     header = [
         f"Simulator preset `{preset}`, command hold `{command_hold}`, scoring rule "
         f"`{objective}`; BO GP fits `{bo_fit}`; {seeds} seeds asked per cell; std over seeds "
-        "with ddof 0.",
+        "with ddof 0. Every run stored in this folder with these settings is shown, not only "
+        "the cells this command asked for.",
         "",
         "Command: `handful bench paper "
         + shlex.join(sys.argv[3:] if len(sys.argv) > 3 else [])

@@ -142,21 +142,40 @@ def test_cli_refuses_bad_cells_with_one_line(tmp_path):
 
 
 @pytest.mark.slow
+def _store_flat_run(out, cells: str, objectives: list[float], trials: int) -> None:
+    """Write finished runs of ``cells`` (fast, linear, published) into ``out``'s cache, one
+    seed per value of ``objectives``, every trial scoring that value."""
+    from app.bench import write_run
+
+    chosen = paper.select(paper.grid(available=()), cells.split())
+    specs = paper.run_specs(
+        chosen, seeds=len(objectives), preset="fast", command_hold="linear",
+        objective_rule="published",
+    )  # fmt: skip
+    for spec, value in zip(specs, objectives, strict=True):
+        rows = [{"trial": t, "objective": value, "wall_s": 0.5, "theta": [0.5] * 11}
+                for t in range(1, trials + 1)]  # fmt: skip
+        write_run(spec, out, rows)
+
+
 def test_cli_runs_a_slice_writes_paper_md_and_resumes_from_its_cache(tmp_path):
     out = tmp_path / "paper"
+    # an earlier slice's runs in the same folder: the tables keep showing them
+    _store_flat_run(out, "P=2 task=throw method=random trials=100", [12.5, 13.5], 100)
     args = ["bench", "paper", "--cells", "P=2 task=hammer method=random", "--trials", "100"]
     args += ["--seeds", "2", "--preset", "fast", "--out", str(out), "--workers", "2"]
     first = handful(*args, "--no-progress", cwd=tmp_path)
     assert first.returncode == 0, first.stderr
     text = (out / "paper.md").read_text()
     throw_line, line = [ln for ln in text.splitlines() if ln.startswith("| Random search | 100 |")]
-    assert "**" not in throw_line  # throwing was not asked for
+    assert "**13.00 ± 0.50** (2)" in throw_line  # stored, not asked for this time
+    assert throw_line.count("*not run*") == 3  # the other P: neither asked nor stored
     ours = re.search(r"\*\*([\d.]+) ± ([\d.]+)\*\* \(2\)", line)
     assert ours, line
     assert (out / "paper_curves.png").stat().st_size > 10_000
-    rows = (out / "results.csv").read_text().splitlines()
-    assert len(rows) == 1 + 2 * 100
-    best = [float(r.split(",")[6]) for r in rows[1:]]
+    rows = [r for r in (out / "results.csv").read_text().splitlines()[1:] if ",hammer," in r]
+    assert len(rows) == 2 * 100
+    best = [float(r.split(",")[6]) for r in rows]
     finals = [best[99], best[199]]
     assert float(ours.group(1)) == pytest.approx(np.mean(finals), abs=6e-4)
     again = handful(*args, "--no-progress", cwd=tmp_path)  # all cached: same table, no runs
