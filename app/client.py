@@ -423,12 +423,19 @@ class HandfulClient:
         return r.content
 
     # --- workers --------------------------------------------------------------------------------
-    def claim(self, worker_id: str, target: str, max_trials: int = 1) -> list[JSON]:
-        """``[{lease_id, trial, experiment, lease_expires_at}]`` (maybe empty)."""
+    def claim(
+        self, worker_id: str, target: str, max_trials: int = 1, *, claim_id: str | None = None
+    ) -> list[JSON]:
+        """``[{lease_id, trial, experiment, lease_expires_at}]`` (maybe empty).
+
+        ``claim_id``: the caller's id for this claim, the same on each retry of it (then the
+        call is safe to retry: a retry whose first try was stored returns that try's leases).
+        """
+        body: JSON = {"worker_id": worker_id, "target": target, "max_trials": max_trials}
+        if claim_id is not None:
+            body["claim_id"] = claim_id
         return self.request(
-            "POST",
-            "/api/workers/claim",
-            json={"worker_id": worker_id, "target": target, "max_trials": max_trials},
+            "POST", "/api/workers/claim", json=body, idempotent=claim_id is not None
         )
 
     def heartbeat(self, lease_id: str) -> JSON:

@@ -256,6 +256,9 @@ class Lease(Base):
     trial_id: Mapped[int] = mapped_column(ForeignKey("trials.id", ondelete="CASCADE"), index=True)
     worker_id: Mapped[str] = mapped_column(String(128))
     claimed_by: Mapped[str] = mapped_column(String(64))
+    #: the worker's id for the claim that opened it (``ClaimIn.claim_id``): a retried claim
+    #: gets its active leases back
+    claim_id: Mapped[str | None] = mapped_column(String(64), index=True)
     status: Mapped[str] = mapped_column(String(16), index=True)
     attempt: Mapped[int] = mapped_column(Integer)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)

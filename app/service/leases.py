@@ -205,11 +205,12 @@ def open_lease(
     action: str,
     lease_seconds: float,
     now: datetime,
+    claim_id: str | None = None,
 ) -> Lease:
     """The one way a trial starts running: one more attempt, queued → running (audited as
     ``action``, with a worker's id and the attempt; a run inside the server, ``SERVICE_WORKER``,
     records none), and an active lease held by ``worker_id`` for ``lease_seconds`` (flushed;
-    the caller commits)."""
+    the caller commits). ``claim_id``: the worker's claim that opened it, if it named one."""
     trial.attempts += 1
     worker = {"worker_id": worker_id, "attempt": trial.attempts}
     detail = None if worker_id == SERVICE_WORKER else worker
@@ -221,6 +222,7 @@ def open_lease(
         trial_id=trial.id,
         worker_id=worker_id,
         claimed_by=actor.username,
+        claim_id=claim_id,
         status="active",
         attempt=trial.attempts,
         created_at=now,
@@ -248,9 +250,31 @@ def claim(
     Atomic: the caller's write session holds the write lock (SQLite) or row locks (SKIP
     LOCKED, PostgreSQL) from the first read, so no trial is handed out twice. ``now``: the
     clock (default: the wall clock), as for ``sweep_expired``.
+
+    A claim that names a ``claim_id`` this worker (and account) already claimed under gets
+    those leases back, the still-active ones, and nothing new: the retry of a claim whose
+    answer was lost (a server killed after its commit) neither strands its trials until their
+    leases expire nor takes more.
     """
     now = now or utcnow()
     sweep_expired(session, max_attempts=max_attempts, now=now)
+    if body.claim_id is not None:
+        earlier = session.scalars(
+            select(Lease)
+            .where(
+                Lease.claim_id == body.claim_id,
+                Lease.worker_id == body.worker_id,
+                Lease.claimed_by == actor.username,
+            )
+            .order_by(Lease.trial_id)
+        ).all()
+        if earlier:
+            return [
+                _claim_read(session, lease, trial)
+                for lease in earlier
+                if lease.status == "active"
+                and (trial := session.get(Trial, lease.trial_id)) is not None
+            ]
     q = (
         select(Trial)
         .join(Experiment, Trial.experiment_id == Experiment.id)
@@ -289,18 +313,22 @@ def claim(
             action="trial.claim",
             lease_seconds=lease_seconds,
             now=now,
+            claim_id=body.claim_id,
         )
-        out.append(
-            ClaimRead(
-                lease_id=lease.id,
-                trial=TrialRead.build(trial, has_trajectory=False),
-                experiment=ExperimentRead.build(exp),
-                lease_expires_at=lease.expires_at,
-                twin=twin_for_claim(session, trial.id) if exp.target == "hardware" else None,
-            )
-        )
+        out.append(_claim_read(session, lease, trial))
     session.flush()
     return out
+
+
+def _claim_read(session: Session, lease: Lease, trial: Trial) -> ClaimRead:
+    exp = trial.experiment
+    return ClaimRead(
+        lease_id=lease.id,
+        trial=TrialRead.build(trial, has_trajectory=False),
+        experiment=ExperimentRead.build(exp),
+        lease_expires_at=lease.expires_at,
+        twin=twin_for_claim(session, trial.id) if exp.target == "hardware" else None,
+    )
 
 
 def _get_lease(session: Session, lease_id: str, actor: Actor) -> Lease:

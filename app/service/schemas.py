@@ -683,10 +683,28 @@ class TwinComparisonRead(BaseModel):
 
 
 # --- workers, leases, results ----------------------------------------------------------------
+_CLAIM_ID = re.compile(r"[A-Za-z0-9_.:-]{1,64}")
+
+
 class ClaimIn(_In):
     worker_id: str = Field(min_length=1, max_length=128)
     target: Target
     max_trials: int = Field(1, ge=1, le=64)
+    claim_id: str | None = Field(
+        None,
+        description="the worker's id for this claim (1-64 letters, digits, '_', '.', ':' or "
+        "'-'), the same on every retry of it: a retry whose first try was stored gets that "
+        "try's leases back (still active ones), not new trials",
+    )
+
+    @field_validator("claim_id")
+    @classmethod
+    def _claim_id_is_a_token(cls, v: str | None) -> str | None:
+        if v is not None and not _CLAIM_ID.fullmatch(v):
+            raise ValueError(
+                f"claim_id must be 1-64 letters, digits, '_', '.', ':' or '-', got {v[:80]!r}"
+            )
+        return v
 
 
 class ClaimRead(BaseModel):

@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+import uuid
 from dataclasses import dataclass
 from typing import Any
 
@@ -200,10 +201,14 @@ class HardwareWorker:
         delay = 0.05
         try:
             while not self.stop.is_set() and (max_trials is None or ran < max_trials):
+                claim_id = uuid.uuid4().hex  # the same on every retry of this claim
                 try:
                     claims = retry(
-                        lambda: self.client.claim(
-                            worker_id=self.worker_id, target="hardware", max_trials=1
+                        lambda cid=claim_id: self.client.claim(
+                            worker_id=self.worker_id,
+                            target="hardware",
+                            max_trials=1,
+                            claim_id=cid,
                         ),
                         what="claim",
                         stop=self.stop,

@@ -14,6 +14,7 @@ import io
 import logging
 import math
 import time
+import uuid
 from collections.abc import Mapping
 from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import dataclass, field
@@ -168,10 +169,14 @@ class SimWorker:
 
     # --- HTTP, with retries ------------------------------------------------------------------
     def _claim(self, n: int) -> list[dict[str, Any]]:
-        """Claim up to n trials; waits out a server restart, gives up only when stopping."""
+        """Claim up to n trials; waits out a server restart, gives up only when stopping.
+        Every retry names the same claim, so one whose answer was lost returns its leases."""
+        claim_id = uuid.uuid4().hex
         try:
             return retry(
-                lambda: self.client.claim(worker_id=self.worker_id, target="sim", max_trials=n),
+                lambda: self.client.claim(
+                    worker_id=self.worker_id, target="sim", max_trials=n, claim_id=claim_id
+                ),
                 what="claim",
                 stop=self.stop,
                 deadline_s=math.inf,

@@ -44,10 +44,15 @@ def npz_bytes(**arrays) -> bytes:
 def test_sim_claim_heartbeat_result(error_of, op, worker, new_exp):
     exp = new_exp(op)
     [trial] = op.suggest(exp["id"])
-    [c] = worker.claim("w-1", "sim", max_trials=4)
+    [c] = worker.claim("w-1", "sim", max_trials=4, claim_id="claim-1")
     assert c["trial"]["id"] == trial["id"] and c["trial"]["status"] == "running"
     assert c["experiment"]["id"] == exp["id"] and c["trial"]["attempts"] == 1
     assert worker.claim("w-2", "sim") == []  # nothing left: no trial handed out twice
+    # the retry of a claim whose answer was lost: the same lease back, not a second attempt
+    [again] = worker.claim("w-1", "sim", max_trials=4, claim_id="claim-1")
+    assert again["lease_id"] == c["lease_id"] and again["trial"]["attempts"] == 1
+    err = error_of(worker.claim, "w-1", "sim", claim_id="no spaces please")
+    assert err.status == 422 and "claim_id must be 1-64 letters" in str(err.detail)
     hb = worker.heartbeat(c["lease_id"])
     assert hb["status"] == "active" and hb["lease_expires_at"] >= c["lease_expires_at"]
     traj = npz_bytes(time_s=np.linspace(0, 5, 11), tip_speed_m_s=np.full(11, 2.5))

@@ -21,11 +21,13 @@ WORKER = Actor("worker", "worker")
 LEASE_S, ATTEMPTS = 30.0, 2
 
 
-def claim(db, target: str, now: datetime) -> list:
+def claim(
+    db, target: str, now: datetime, *, claim_id: str | None = None, worker_id: str = "w", n=1
+) -> list:
     with db.write() as s:
         return leases.claim(
             s,
-            ClaimIn(worker_id="w", target=target, max_trials=1),
+            ClaimIn(worker_id=worker_id, target=target, max_trials=n, claim_id=claim_id),
             actor=WORKER,
             lease_seconds=LEASE_S,
             max_attempts=ATTEMPTS,
@@ -117,3 +119,33 @@ def test_heartbeats_keep_a_lease_alive(db, make_experiment, make_trial):
     assert trial(db, tid).status == lc.RUNNING
     assert sweep(db, now + timedelta(seconds=LEASE_S + 1)) == 1  # the heartbeats stop
     assert trial(db, tid).status == lc.QUEUED
+
+
+def test_a_retried_claim_gets_its_leases_back_and_nothing_more(db, make_experiment, make_trial):
+    """The server stored a claim but its answer was lost: the worker's retry, under the same
+    claim id, gets the same leases back, active ones only, and takes no other trial."""
+    exp = make_experiment()
+    ids = [make_trial(exp, status=lc.QUEUED) for _ in range(4)]
+    t0 = utcnow()
+    first = claim(db, "sim", t0, claim_id="c-1", n=2)
+    assert [c.trial.id for c in first] == ids[:2]
+    again = claim(db, "sim", t0 + timedelta(seconds=1), claim_id="c-1", n=2)
+    assert sorted((c.lease_id, c.trial.id) for c in again) == sorted(
+        (c.lease_id, c.trial.id) for c in first
+    )
+    assert [trial(db, i).status for i in ids] == [lc.RUNNING] * 2 + [lc.QUEUED] * 2
+    assert [trial(db, i).attempts for i in ids[:2]] == [1, 1]  # no second attempt opened
+    # a new claim id takes new trials; another worker's claim under the same id is its own
+    assert [c.trial.id for c in claim(db, "sim", t0, claim_id="c-2")] == [ids[2]]
+    assert [c.trial.id for c in claim(db, "sim", t0, claim_id="c-1", worker_id="v")] == [ids[3]]
+    # once its leases are lost, a late retry gets nothing (the trials are queued for others)
+    with db.write() as s:
+        leases.sweep_expired(s, max_attempts=ATTEMPTS, now=t0 + timedelta(seconds=LEASE_S + 1))
+    assert claim(db, "sim", t0 + timedelta(seconds=LEASE_S + 2), claim_id="c-1") == []
+    assert trial(db, ids[0]).status == lc.QUEUED
+
+
+def test_a_claim_id_must_be_a_short_token():
+    for bad in ("", "x" * 65, "has space", "new\nline"):
+        with pytest.raises(ValueError, match="claim_id"):
+            ClaimIn(worker_id="w", target="sim", claim_id=bad)
