@@ -97,8 +97,8 @@ def main() -> None:
             ratio = f"{np.mean(fc) / np.mean(wc):.2f}×" if wc and fc else ""
             lines.append(
                 f"| {task} | {b} | {fmt(wb)} | {fmt(fb)} | {p} "
-                f"| {np.mean(wc) if wc else float('nan'):.0f} "
-                f"| {np.mean(fc) if fc else float('nan'):.0f} | {ratio} |"
+                f"| {f'{np.mean(wc):.0f}' if wc else '–'} "
+                f"| {f'{np.mean(fc):.0f}' if fc else '–'} | {ratio} |"
             )
     text = "\n".join(lines) + "\n"
     print(text)
