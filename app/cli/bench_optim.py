@@ -123,11 +123,14 @@ def optim(
 ) -> None:
     """Run BO, CEM, random search, Optuna and CMA-ES (and, asked for, the RL baseline REDQ:
     ``--methods redq,redq-joints``) on the simulated tasks; write
-    DIR/results.csv, DIR/summary.md and DIR/curves.png. Finished runs are cached and skipped.
+    DIR/results.csv, DIR/summary.md and DIR/curves.png. Finished runs are cached and skipped;
+    the outputs also show every other method's runs DIR holds for the same tasks, P, seeds and
+    simulator settings (``--cached-only`` shows just the methods asked for).
 
     By default the simulator reproduces the paper's tables: preset, command hold and scoring
     rule of ``app.bench.PAPER_PRESET`` / ``PAPER_COMMAND_HOLD`` / ``PAPER_OBJECTIVE_RULE``."""
     from app import bench
+    from app.bench.specs import SWEEP_METHODS
     from app.optim import METHODS, SettingsError
 
     preset, command_hold, objective = sim_settings(preset, command_hold, objective)
@@ -171,6 +174,22 @@ def optim(
             workers=workers or None,
             progress=progress,
         )
+        # the outputs show every method DIR holds for these tasks, P, seeds and settings, not
+        # only this invocation's methods (a sweep is often run a few methods at a time)
+        whole = bench.make_specs(
+            methods=SWEEP_METHODS,
+            tasks=tasks,
+            levels=ps,
+            budgets=budgets,
+            seeds=seeds,
+            preset=preset,
+            command_hold=command_hold,
+            objective_rule=objective,
+            rl_settings=_key_values("redq", redq or []),
+        )
+        ran = {s.key for s in runs}
+        runs |= {s: r for s in whole if s.key not in ran and (r := bench.stored_rows(s, out))}
+        specs = [s for s in whole if s in runs] + [s for s in runs if s not in set(whole)]
     bench.write_outputs(out, specs, runs, budgets)
     typer.echo((out / "summary.md").read_text())
     typer.echo(f"wrote {out / 'results.csv'}, {out / 'summary.md'}, {out / 'curves.png'}")

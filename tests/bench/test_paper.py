@@ -141,7 +141,6 @@ def test_cli_refuses_bad_cells_with_one_line(tmp_path):
         assert not (tmp_path / "o").exists()
 
 
-@pytest.mark.slow
 def _store_flat_run(out, cells: str, objectives: list[float], trials: int) -> None:
     """Write finished runs of ``cells`` (fast, linear, published) into ``out``'s cache, one
     seed per value of ``objectives``, every trial scoring that value."""
@@ -158,6 +157,7 @@ def _store_flat_run(out, cells: str, objectives: list[float], trials: int) -> No
         write_run(spec, out, rows)
 
 
+@pytest.mark.slow
 def test_cli_runs_a_slice_writes_paper_md_and_resumes_from_its_cache(tmp_path):
     out = tmp_path / "paper"
     # an earlier slice's runs in the same folder: the tables keep showing them
