@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -130,7 +131,7 @@ def optim(
     By default the simulator reproduces the paper's tables: preset, command hold and scoring
     rule of ``app.bench.PAPER_PRESET`` / ``PAPER_COMMAND_HOLD`` / ``PAPER_OBJECTIVE_RULE``."""
     from app import bench
-    from app.bench.specs import SWEEP_METHODS
+    from app.bench.specs import RL_METHODS, SWEEP_METHODS
     from app.optim import METHODS, SettingsError
 
     preset, command_hold, objective = sim_settings(preset, command_hold, objective)
@@ -146,18 +147,23 @@ def optim(
         _fail(f"the simulator is not available: {exc}")
     if preset not in PRESETS:
         _fail(f"unknown --preset {preset!r}; choose from {', '.join(PRESETS)}")
+    grid: dict[str, Any] = {
+        "tasks": tasks,
+        "levels": ps,
+        "budgets": budgets,
+        "seeds": seeds,
+        "preset": preset,
+        "command_hold": command_hold,
+        "objective_rule": objective,
+    }
     try:
-        specs = bench.make_specs(
-            methods=chosen,
-            tasks=tasks,
-            levels=ps,
-            budgets=budgets,
-            seeds=seeds,
-            preset=preset,
-            command_hold=command_hold,
-            objective_rule=objective,
-            rl_settings=_key_values("redq", redq or []),
-        )
+        rl_settings = _key_values("redq", redq or [])
+        specs = bench.make_specs(methods=chosen, rl_settings=rl_settings, **grid)
+        # every method's runs of the same grid: the outputs show those DIR holds, not only this
+        # invocation's methods (a sweep is often run a few methods at a time); RL runs only
+        # of the RL methods asked for, whose --redq settings name their runs
+        others = [m for m in SWEEP_METHODS if m not in RL_METHODS and m not in chosen]
+        whole = bench.make_specs(methods=[*chosen, *others], rl_settings=rl_settings, **grid)
     except SettingsError as exc:
         _fail(str(exc))
     if cached_only:
@@ -173,19 +179,6 @@ def optim(
             address=address,
             workers=workers or None,
             progress=progress,
-        )
-        # the outputs show every method DIR holds for these tasks, P, seeds and settings, not
-        # only this invocation's methods (a sweep is often run a few methods at a time)
-        whole = bench.make_specs(
-            methods=SWEEP_METHODS,
-            tasks=tasks,
-            levels=ps,
-            budgets=budgets,
-            seeds=seeds,
-            preset=preset,
-            command_hold=command_hold,
-            objective_rule=objective,
-            rl_settings=_key_values("redq", redq or []),
         )
         ran = {s.key for s in runs}
         runs |= {s: r for s in whole if s.key not in ran and (r := bench.stored_rows(s, out))}

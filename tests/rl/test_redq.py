@@ -152,6 +152,12 @@ def test_cli_refuses_bad_redq_settings_with_one_line(tmp_path: Path) -> None:
         assert res.returncode == 2, (args, res.stderr)
         assert message in res.stderr and len(res.stderr.strip().splitlines()) == 1, res.stderr
         assert not (tmp_path / "o").exists()
+    # a setting right for the method asked for is not checked against the other RL method
+    res = handful(
+        "bench", "optim", "--methods", "redq", "--task", "hammer", "--redq", "observations=task",
+        "--cached-only", "--out", str(tmp_path / "o"), cwd=tmp_path,
+    )  # fmt: skip
+    assert res.returncode == 2 and "no runs of this sweep stored" in res.stderr, res.stderr
 
 
 def test_the_trial_service_refuses_redq(api) -> None:
