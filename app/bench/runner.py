@@ -7,9 +7,10 @@ from __future__ import annotations
 
 import csv
 import math
+import os
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -51,20 +52,48 @@ def _trial_row(
     return row
 
 
+def _replaced(fh: Any, path: Path) -> bool:
+    """Whether ``path`` is no longer the file ``fh`` writes (deleted, or another file put in
+    its place: a ``git checkout``, ``git stash`` or copy over a committed cache)."""
+    try:
+        now = os.stat(path)
+    except FileNotFoundError:
+        return True
+    mine = os.fstat(fh.fileno())
+    return (mine.st_dev, mine.st_ino) != (now.st_dev, now.st_ino)
+
+
 @contextmanager
-def _part_writer(part: Path | None, *, fresh: bool) -> Iterator[Callable[[dict[str, Any]], None]]:
-    """A function that appends a trial's row to the run's part file and flushes it (a
-    ``fresh`` file gets the header first); without a part file it keeps nothing."""
+def _part_writer(
+    part: Path | None, rows: list[dict[str, Any]], *, fresh: bool
+) -> Iterator[Callable[[dict[str, Any]], None]]:
+    """A function that appends a trial's row (the last of ``rows``) to the run's part file and
+    flushes it (a ``fresh`` file gets the header first); without a part file it keeps nothing.
+
+    If the part file was replaced or deleted under the run, the next append writes it anew
+    from ``rows`` (every trial so far), so an interruption after that loses nothing; appending
+    to the old handle would write to a file no path names any more.
+    """
     if part is None:
         yield lambda row: None
         return
-    with open(part, "w" if fresh else "a", newline="") as fh:
+    with ExitStack() as files:
+        fh = files.enter_context(open(part, "w" if fresh else "a", newline=""))
         writer = csv.writer(fh)
         if fresh:
             writer.writerow(RUN_COLUMNS)
             fh.flush()
 
         def append(row: dict[str, Any]) -> None:
+            nonlocal fh, writer
+            if _replaced(fh, part):
+                fh.close()
+                tmp = part.with_name(part.name + ".tmp")
+                write_part(tmp, rows)
+                os.replace(tmp, part)
+                fh = files.enter_context(open(part, "a", newline=""))
+                writer = csv.writer(fh)
+                return
             writer.writerow(run_line(row))
             fh.flush()
 
@@ -142,7 +171,7 @@ def run_one(
             if start == shorter and rows:
                 write_part(part, rows)
     fresh = part is not None and (not part.exists() or not rows)
-    with _part_writer(part, fresh=fresh) as append:
+    with _part_writer(part, rows, fresh=fresh) as append:
         while len(rows) < spec.budget:
             t0 = time.perf_counter()
             theta = opt.suggest(1)[0]
@@ -196,7 +225,7 @@ def run_rl(spec: RunSpec, out: Path | None = None) -> list[dict[str, Any]]:
             else:  # a checkpoint ahead of its rows: not ours to trust
                 agent = REDQAgent(env, settings, seed=spec.seed)
         write_part(part, rows)
-    with _part_writer(part, fresh=False) as append:
+    with _part_writer(part, rows, fresh=False) as append:
         while len(rows) < spec.budget:
             t0 = time.perf_counter()
             ep = agent.run_episode()

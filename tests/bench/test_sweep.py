@@ -122,6 +122,34 @@ def test_an_interrupted_or_extended_run_resumes_to_the_same_result(tmp_path):
     assert len(bench.read_run(part_dir / f"{spec5.key}.csv")) == 5
 
 
+def test_a_part_file_replaced_under_a_running_run_is_written_anew(tmp_path):
+    """A git checkout (or stash) of the committed cache replaces a running run's part file:
+    the run writes it anew from its own rows, so stopping it afterwards loses nothing."""
+    spec = bench.RunSpec("cem", "hammer", 2, 0, 6, "fast")
+    direct = bench.run_one(spec, tmp_path / "a")
+    out = tmp_path / "b"
+    part = out / "runs" / f"{spec.key}.part.csv"
+    f = bench.objective_fn("hammer", 2, "fast")
+    calls = 0
+
+    def objective(theta):
+        nonlocal calls
+        calls += 1
+        if calls == 3:  # an older version of the file, put in its place
+            bench.write_part(part.with_name("old.csv"), bench.read_run(part)[:1])
+            os.replace(part.with_name("old.csv"), part)
+        if calls == 5:
+            raise KeyboardInterrupt  # the run is stopped during trial 5
+        return f(theta)
+
+    with pytest.raises(KeyboardInterrupt):
+        bench.run_one(spec, out, objective=objective)
+    kept = bench.read_run(part)
+    assert [r["objective"] for r in kept] == [r["objective"] for r in direct[:4]]
+    resumed = bench.run_one(spec, out)
+    assert [r["theta"] for r in resumed] == [r["theta"] for r in direct]
+
+
 def test_summary_marks_the_best_mean_and_reports_each_budget():
     rows = []
     for method, base in (("a", 1.0), ("b", 2.0)):
