@@ -366,9 +366,9 @@ def _finger_geom(
     palm_length_m: float,
     finger_len: float,
     coll: tuple[int, int],
-) -> None:
+) -> mujoco.MjsGeom:
     """A finger's box (the same for either grasp) at ``x``, from the palm's end outwards."""
-    _geom(
+    return _geom(
         body,
         f"{side}_finger",
         mujoco.mjtGeom.mjGEOM_BOX,
@@ -410,7 +410,8 @@ def _add_fingers(palm: mujoco.MjsBody, params: ArmParams, coll: _Collision) -> N
         frame = finger.add_body(name=f"{side}_finger_frame")
         _set_inertial(frame, 0.0, (0.0, 0.0, 0.0), [0.0, 0.0, 0.0])
         tip_len = gp.finger_tip_m - gp.palm_length_m
-        _finger_geom(frame, side, sign * 0.012, gp.palm_length_m, tip_len, coll.finger)
+        box = _finger_geom(frame, side, sign * 0.012, gp.palm_length_m, tip_len, coll.finger)
+        box.solref = list(gp.finger_solref)
         # pad k lies k pad lengths nearer the palm than pad 1
         for k, mu in enumerate(gp.pad_friction):
             z = origin_z - 2.0 * k * PAD_HALF[2]
@@ -489,7 +490,7 @@ def _add_cube(
     i = cp.mass_kg * cp.side_m**2 / 6.0
     centre = [0.0, 0.0, cp.origin_offset_m]
     _set_inertial(body, cp.mass_kg, centre, [i, i, i])
-    _geom(
+    cube = _geom(
         body,
         CUBE_BODY,
         mujoco.mjtGeom.mjGEOM_BOX,
@@ -498,6 +499,8 @@ def _add_cube(
         (coll.obj[0], coll.obj[1] | 4),  # the pads touch it
         pos=centre,
     )
+    if params.gripper.grasp == "friction":
+        cube.solref = list(params.gripper.cube_solref)
     body.add_site(name=CUBE_CENTRE_SITE, pos=centre, size=[0.005, 0.0, 0.0])
     spec.add_exclude(bodyname1=GRIPPER_BODY, bodyname2=CUBE_BODY)
     if params.gripper.grasp == "weld":

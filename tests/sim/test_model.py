@@ -124,6 +124,13 @@ def test_task_loads() -> None:
     assert build_model("throw", "fast").nu == 12
     with pytest.raises(ValueError, match="unknown grasp 'glue'"):
         GripperParams(grasp="glue")
+    with pytest.raises(ValueError, match=r"cube_solref needs a time constant > 0 s .*\(0.0, 1.0\)"):
+        GripperParams(cube_solref=(0.0, 1.0))
+    # the friction grasp's fingers and cube meet the world softly (they stand in for the
+    # published linkage's give); the weld (and so the fast preset) keeps MuJoCo's default
+    np.testing.assert_allclose(throw.geom_solref[throw.geom("cube").id], [0.08, 0.3])
+    np.testing.assert_allclose(throw.geom_solref[throw.geom("left_finger").id], [0.08, 1.0])
+    np.testing.assert_allclose(welded.geom_solref[welded.geom("cube").id], [0.02, 1.0])
 
 
 def test_friction_fingers_hit_the_floor_and_the_pads_touch_only_the_cube() -> None:
