@@ -1,4 +1,4 @@
-"""Does the warm GP fit lose sample efficiency? BO-LEI with ``fit_mode="warm"`` (handful's bench
+"""Does the warm GP fit lose sample efficiency? BO-LEI with ``--bo-fit warm`` (handful's bench
 default) against the paper's full refit after every trial, on the runs ``handful bench paper``
 cached for both, and what each whole run cost.
 
@@ -6,6 +6,9 @@ cached for both, and what each whole run cost.
     handful bench paper --bo-fit full --cells "method=bo-lei P=7" --trials 100,500 \
         --out docs/bench/paper/grid_full
     python benchmarks/bo_fit_noloss.py --warm docs/bench/paper/grid \
+        --full docs/bench/paper/grid_full --levels 7 --budgets 100 500
+    # the fast mode (``--bo-fit fast``, its runs in their own folder) the same way:
+    python benchmarks/bo_fit_noloss.py --fit fast --warm docs/bench/paper/grid_fast \
         --full docs/bench/paper/grid_full --levels 7 --budgets 100 500
 
 Writes a Markdown table (stdout, and ``--md``): best-so-far after each budget, mean ± std over
@@ -24,12 +27,13 @@ import numpy as np
 from scipy.stats import ttest_ind
 
 from app.bench.cache import stored_rows
+from app.bench.paper import BO_FITS
 from app.bench.specs import RunSpec
 from app.policy import PAPER_COMMAND_HOLD, PAPER_OBJECTIVE_RULE, PAPER_PRESET
 
 
 def runs(out: Path, task: str, levels: int, fit: str, seeds: int) -> list[list[dict]]:
-    """Each seed's stored rows (finished or in progress) of bo-lei with ``fit_mode=fit``."""
+    """Each seed's stored rows (finished or in progress) of bo-lei with ``--bo-fit fit``."""
     got = []
     for s in range(seeds):
         spec = RunSpec(
@@ -39,7 +43,7 @@ def runs(out: Path, task: str, levels: int, fit: str, seeds: int) -> list[list[d
             s,
             10_000,
             PAPER_PRESET,
-            settings={"fit_mode": fit},
+            settings=dict(BO_FITS[fit]),
             command_hold=PAPER_COMMAND_HOLD,
             objective_rule=PAPER_OBJECTIVE_RULE,
         )
@@ -60,6 +64,12 @@ def at(rows_per_seed: list[list[dict]], budget: int) -> tuple[list[float], list[
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--warm", type=Path, required=True, help="cache folder of the warm runs")
+    ap.add_argument(
+        "--fit",
+        default="warm",
+        choices=[f for f in BO_FITS if f != "full"],
+        help="the --bo-fit of the runs in --warm (warm or fast)",
+    )
     ap.add_argument("--full", type=Path, required=True, help="cache folder of the full runs")
     ap.add_argument("--levels", type=int, default=7)
     ap.add_argument("--budgets", type=int, nargs="+", default=[100, 500])
@@ -67,16 +77,17 @@ def main() -> None:
     ap.add_argument("--md", type=Path, help="also write the table here")
     a = ap.parse_args()
     lines = [
-        f"BO-LEI, P = {a.levels}: GP fit `warm` vs `full` (simulator preset `{PAPER_PRESET}`, "
+        f"BO-LEI, P = {a.levels}: `--bo-fit {a.fit}` vs `full` (simulator preset `{PAPER_PRESET}`, "
         f"command hold `{PAPER_COMMAND_HOLD}`, scoring rule `{PAPER_OBJECTIVE_RULE}`). "
         "Best so far: mean ± std (ddof 1) over seeds (n); p: Welch's two-sided t-test; "
         "cost: mean wall seconds of a whole run of that length.",
         "",
-        "| Task | Trials | warm | full | Welch p | warm s/run | full s/run | full ÷ warm |",
+        f"| Task | Trials | {a.fit} | full | Welch p | {a.fit} s/run | full s/run "
+        f"| full ÷ {a.fit} |",
         "|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for task in ("throw", "hammer"):
-        w_runs = runs(a.warm, task, a.levels, "warm", a.seeds)
+        w_runs = runs(a.warm, task, a.levels, a.fit, a.seeds)
         f_runs = runs(a.full, task, a.levels, "full", a.seeds)
         for b in a.budgets:
             (wb, wc), (fb, fc) = at(w_runs, b), at(f_runs, b)

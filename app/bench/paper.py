@@ -36,6 +36,16 @@ PAPER_METHODS = {
 METHOD_TRIALS = {"bo-ucb": (100, 500), "bo-lei": (100, 500), "cem": PAPER_TRIALS}
 METHOD_TRIALS["random"] = PAPER_TRIALS
 METHOD_TRIALS[DEFAULT_METHOD] = (100, 500)
+#: ``handful bench paper --bo-fit NAME``: the settings every BO method of the grid gets.
+#: full: the paper's (every GP fitted from scratch, BoTorch's posterior); warm: fits from the
+#: last anchor's hyperparameters (``app.optim.bo.anchor_size``); fast: no fit between
+#: anchors (their hyperparameters, conditioned on all data) and the cached exact posterior
+#: in the acquisition search (``app.optim.posterior``).
+BO_FITS: dict[str, dict[str, Any]] = {
+    "full": {"fit_mode": "full"},
+    "warm": {"fit_mode": "warm"},
+    "fast": {"fit_mode": "warm", "warm_maxiter": 0, "acq_posterior": "cached"},
+}
 REDQ_METHODS = {"redq": "REDQ", "redq-joints": "REDQ with approximate joint states"}
 REDQ_TRIALS = (250, 500, 10_000)
 

@@ -73,9 +73,12 @@ def test_runs_share_cells_and_bo_settings_key_their_caches():
     assert bo.settings == {"fit_mode": "warm"}
     assert cem.settings == {"init_std": pytest.approx(0.288675)}  # the paper's CEM: 1/√12
     assert (cem.command_hold, cem.objective_rule) == ("linear", "published")
-    full = paper.run_specs(cells, seeds=1, **sim, bo_settings={"fit_mode": "full"})
-    assert next(s for s in full if s.method == "bo-lei").key != bo.key  # never mixed
-    assert next(s for s in full if s.method == "cem").key == cem.key  # shared: same runs
+    keys = set()
+    for settings in paper.BO_FITS.values():  # --bo-fit full / warm / fast
+        other = paper.run_specs(cells, seeds=1, **sim, bo_settings=settings)
+        keys.add(next(s for s in other if s.method == "bo-lei").key)
+        assert next(s for s in other if s.method == "cem").key == cem.key  # shared: same runs
+    assert len(keys) == 3 and bo.key in keys  # BO runs of each --bo-fit never mixed
 
 
 def test_redq_settings_key_runs_but_where_they_compute_does_not():
@@ -129,7 +132,7 @@ def test_cli_refuses_bad_cells_with_one_line(tmp_path):
         (["--cells", "method=sgd"], "unknown method 'sgd'"),
         (["--trials", "20000"], "nothing above 10K"),
         (["--cells", "method=redq", "--trials", "100"], "no cell of the paper's grid matches"),
-        (["--bo-fit", "fast"], "--bo-fit must be warm or full"),
+        (["--bo-fit", "quick"], "--bo-fit must be one of full, warm, fast, got 'quick'"),
         (["--command-hold", "cubic"], "unknown --command-hold 'cubic'"),
         (["--cells", "method=redq", "--redq", "utd=0"], "REDQ utd"),
         (["--cells", "method=redq", "--redq", "observations=pixels"], "unknown observation set"),

@@ -363,7 +363,8 @@ def test_warm_fits_reach_the_full_fits_likelihood_and_rebuild_the_same(monkeypat
         {"refit_every": 0},
         {"refit_every": 2.5},
         {"refit_fraction": -1},
-        {"warm_maxiter": 0},
+        {"warm_maxiter": -1},
+        {"acq_posterior": "lazy"},
     ],
 )
 def test_bad_fit_settings_name_the_setting(settings):
