@@ -16,6 +16,7 @@ point's choice (``app.procs.set_torch_threads``: the server, the sweep, the benc
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
 import warnings
@@ -31,6 +32,7 @@ from botorch.acquisition import (
     qUpperConfidenceBound,
 )
 from botorch.acquisition.analytic import UpperConfidenceBound
+from botorch.exceptions.errors import ModelFittingError
 from botorch.fit import fit_gpytorch_mll
 from botorch.models import MultiTaskGP, SingleTaskGP
 from botorch.models.transforms import Normalize, Standardize
@@ -339,7 +341,15 @@ def fit_gp(model: SingleTaskGP, maxiter: int | None = None) -> SingleTaskGP:
         kwargs["optimizer_kwargs"] = {"options": {"maxiter": maxiter}}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        fit_gpytorch_mll(mll, **kwargs)
+        try:
+            fit_gpytorch_mll(mll, **kwargs)
+        except ModelFittingError:
+            # every attempt ended in an optimiser warning (on skewed data, e.g. hammering at
+            # N ≈ 400, L-BFGS-B's line search can stop abnormally from every start): take the
+            # fit as it stands rather than fail the suggestion; if even that raises, the
+            # hyperparameters stay where the fit started (BoTorch rolls them back)
+            with contextlib.suppress(ModelFittingError):
+                fit_gpytorch_mll(mll, warning_handler=lambda w: True, **kwargs)
     model.eval()
     return model
 
