@@ -32,21 +32,26 @@ from app.bench.specs import RunSpec
 from app.policy import PAPER_COMMAND_HOLD, PAPER_OBJECTIVE_RULE, PAPER_PRESET
 
 
+def bo_lei_spec(task: str, levels: int, seed: int, fit: str) -> RunSpec:
+    """The grid's BO-LEI run with ``--bo-fit fit`` (the paper's settings otherwise)."""
+    return RunSpec(
+        "bo-lei",
+        task,
+        levels,
+        seed,
+        10_000,
+        PAPER_PRESET,
+        settings=dict(BO_FITS[fit]),
+        command_hold=PAPER_COMMAND_HOLD,
+        objective_rule=PAPER_OBJECTIVE_RULE,
+    )
+
+
 def runs(out: Path, task: str, levels: int, fit: str, seeds: int) -> list[list[dict]]:
     """Each seed's stored rows (finished or in progress) of bo-lei with ``--bo-fit fit``."""
     got = []
     for s in range(seeds):
-        spec = RunSpec(
-            "bo-lei",
-            task,
-            levels,
-            s,
-            10_000,
-            PAPER_PRESET,
-            settings=dict(BO_FITS[fit]),
-            command_hold=PAPER_COMMAND_HOLD,
-            objective_rule=PAPER_OBJECTIVE_RULE,
-        )
+        spec = bo_lei_spec(task, levels, s, fit)
         got.append(stored_rows(spec, out))
     return got
 

@@ -27,28 +27,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from bo_fit_noloss import bo_lei_spec as spec
 
 from app.bench.cache import stored_rows
-from app.bench.paper import BO_FITS
 from app.bench.runner import objective_fn
-from app.bench.specs import RunSpec
 from app.optim import build_optimizer
 from app.policy import PAPER_COMMAND_HOLD, PAPER_OBJECTIVE_RULE, PAPER_PRESET
-
-
-def spec(task: str, levels: int, seed: int, fit: str) -> RunSpec:
-    """The grid's BO-LEI run with ``--bo-fit fit`` (the paper's settings otherwise)."""
-    return RunSpec(
-        "bo-lei",
-        task,
-        levels,
-        seed,
-        10_000,
-        PAPER_PRESET,
-        settings=dict(BO_FITS[fit]),
-        command_hold=PAPER_COMMAND_HOLD,
-        objective_rule=PAPER_OBJECTIVE_RULE,
-    )
 
 
 def cpu(fn) -> float:  # type: ignore[no-untyped-def]
