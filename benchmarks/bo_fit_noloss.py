@@ -1,8 +1,9 @@
-"""Does the warm GP fit lose sample efficiency? BO-LEI with ``--bo-fit warm`` (handful's bench
-default) against the paper's full refit after every trial, on the runs ``handful bench paper``
-cached for both, and what each whole run cost.
+"""Does the warm GP fit lose sample efficiency? BO-LEI with ``--bo-fit warm`` (the committed
+grid's BO runs) against the paper's full refit after every trial, on the runs ``handful bench
+paper`` cached for both, and what each whole run cost.
 
-    handful bench paper --cells "method=bo-lei P=7" --trials 100,500 --out docs/bench/paper/grid
+    handful bench paper --bo-fit warm --cells "method=bo-lei P=7" --trials 100,500 \
+        --out docs/bench/paper/grid
     handful bench paper --bo-fit full --cells "method=bo-lei P=7" --trials 100,500 \
         --out docs/bench/paper/grid_full
     python benchmarks/bo_fit_noloss.py --warm docs/bench/paper/grid \

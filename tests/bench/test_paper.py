@@ -170,6 +170,7 @@ def test_cli_runs_a_slice_writes_paper_md_and_resumes_from_its_cache(tmp_path):
     first = handful(*args, "--no-progress", cwd=tmp_path)
     assert first.returncode == 0, first.stderr
     text = (out / "paper.md").read_text()
+    assert "BO GP fits `fast`" in text  # the default: docs/bench/optim.md (g″)
     throw_line, line = [ln for ln in text.splitlines() if ln.startswith("| Random search | 100 |")]
     assert "**13.00 ± 0.50** (2)" in throw_line  # stored, not asked for this time
     assert throw_line.count("*not run*") == 3  # the other P: neither asked nor stored
