@@ -2,15 +2,16 @@
 grid's BO runs) against the paper's full refit after every trial, on the runs ``handful bench
 paper`` cached for both, and what each whole run cost.
 
-    handful bench paper --bo-fit warm --cells "method=bo-lei P=7" --trials 100,500 \
-        --out docs/bench/paper/grid
-    handful bench paper --bo-fit full --cells "method=bo-lei P=7" --trials 100,500 \
-        --out docs/bench/paper/grid_full
-    python benchmarks/bo_fit_noloss.py --warm docs/bench/paper/grid \
+    handful bench paper --preset fast-r1 --bo-fit warm --cells "method=bo-lei P=7" \
+        --trials 100,500 --out docs/bench/paper/grid
+    handful bench paper --preset fast-r1 --bo-fit full --cells "method=bo-lei P=7" \
+        --trials 100,500 --out docs/bench/paper/grid_full
+    python benchmarks/bo_fit_noloss.py --preset fast-r1 --warm docs/bench/paper/grid \
         --full docs/bench/paper/grid_full --levels 7 --budgets 100 500
     # the fast mode (``--bo-fit fast``, its runs in their own folder) the same way:
-    python benchmarks/bo_fit_noloss.py --fit fast --warm docs/bench/paper/grid_fast \
-        --full docs/bench/paper/grid_full --levels 7 --budgets 100 500
+    python benchmarks/bo_fit_noloss.py --preset fast-r1 --fit fast \
+        --warm docs/bench/paper/grid_fast --full docs/bench/paper/grid_full --levels 7 \
+        --budgets 100 500
 
 Writes a Markdown table (stdout, and ``--md``): best-so-far after each budget, mean ± std over
 the seeds both sides reached, Welch's two-sided t-test p-value, and the mean wall seconds of a
@@ -33,7 +34,9 @@ from app.bench.specs import RunSpec
 from app.policy import PAPER_COMMAND_HOLD, PAPER_OBJECTIVE_RULE, PAPER_PRESET
 
 
-def bo_lei_spec(task: str, levels: int, seed: int, fit: str) -> RunSpec:
+def bo_lei_spec(
+    task: str, levels: int, seed: int, fit: str, preset: str = PAPER_PRESET
+) -> RunSpec:
     """The grid's BO-LEI run with ``--bo-fit fit`` (the paper's settings otherwise)."""
     return RunSpec(
         "bo-lei",
@@ -41,18 +44,20 @@ def bo_lei_spec(task: str, levels: int, seed: int, fit: str) -> RunSpec:
         levels,
         seed,
         10_000,
-        PAPER_PRESET,
+        preset,
         settings=dict(BO_FITS[fit]),
         command_hold=PAPER_COMMAND_HOLD,
         objective_rule=PAPER_OBJECTIVE_RULE,
     )
 
 
-def runs(out: Path, task: str, levels: int, fit: str, seeds: int) -> list[list[dict]]:
+def runs(
+    out: Path, task: str, levels: int, fit: str, seeds: int, preset: str = PAPER_PRESET
+) -> list[list[dict]]:
     """Each seed's stored rows (finished or in progress) of bo-lei with ``--bo-fit fit``."""
     got = []
     for s in range(seeds):
-        spec = bo_lei_spec(task, levels, s, fit)
+        spec = bo_lei_spec(task, levels, s, fit, preset)
         got.append(stored_rows(spec, out))
     return got
 
@@ -78,12 +83,15 @@ def main() -> None:
     )
     ap.add_argument("--full", type=Path, required=True, help="cache folder of the full runs")
     ap.add_argument("--levels", type=int, default=7)
+    ap.add_argument(
+        "--preset", default=PAPER_PRESET, help="the runs' simulator preset (committed: fast-r1)"
+    )
     ap.add_argument("--budgets", type=int, nargs="+", default=[100, 500])
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--md", type=Path, help="also write the table here")
     a = ap.parse_args()
     lines = [
-        f"BO-LEI, P = {a.levels}: `--bo-fit {a.fit}` vs `full` (simulator preset `{PAPER_PRESET}`, "
+        f"BO-LEI, P = {a.levels}: `--bo-fit {a.fit}` vs `full` (simulator preset `{a.preset}`, "
         f"command hold `{PAPER_COMMAND_HOLD}`, scoring rule `{PAPER_OBJECTIVE_RULE}`). "
         "Best so far: mean ± std (ddof 1) over seeds (n); p: Welch's two-sided t-test; "
         "cost: mean wall seconds of a whole run of that length.",
@@ -93,8 +101,8 @@ def main() -> None:
         "|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for task in ("throw", "hammer"):
-        w_runs = runs(a.warm, task, a.levels, a.fit, a.seeds)
-        f_runs = runs(a.full, task, a.levels, "full", a.seeds)
+        w_runs = runs(a.warm, task, a.levels, a.fit, a.seeds, a.preset)
+        f_runs = runs(a.full, task, a.levels, "full", a.seeds, a.preset)
         for b in a.budgets:
             (wb, wc), (fb, fc) = at(w_runs, b), at(f_runs, b)
             if not wb and not fb:

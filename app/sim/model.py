@@ -29,7 +29,7 @@ import numpy as np
 
 from app.policy import TASKS
 from app.sim.params import ArmParams, LinkParams
-from app.sim.presets import Preset, get_preset
+from app.sim.presets import ARM_SELF_COLLISION, Preset, get_preset
 
 EEF_SITE = "eef"
 GRIP_WELD = "grip"
@@ -107,10 +107,19 @@ def _set_inertial(
 
 
 class _Collision:
-    """contype/conaffinity pairs: arm parts may be told not to collide with one another."""
+    """contype/conaffinity pairs: arm parts may be told not to collide with one another.
 
-    def __init__(self, arm_self_collision: bool) -> None:
-        self.arm = (1, 1) if arm_self_collision else (2, 1)
+    ``arm_self_collision`` (a preset's): ``"all"``, every arm part with every other (as MuJoCo
+    filters parent and child); ``"joint"``, only the disks of one continuum joint with one
+    another (what stops a joint bending further: nearly all of the arm's self-contacts,
+    docs/bench/paper.md (a‴)); ``"none"``.
+    """
+
+    def __init__(self, arm_self_collision: str, weld_fingers_collide: bool = True) -> None:
+        assert arm_self_collision in ARM_SELF_COLLISION  # Preset checks it
+        self.mode = arm_self_collision
+        self.weld_fingers_collide = weld_fingers_collide
+        self.arm = (1, 1) if arm_self_collision == "all" else (2, 1)
         self.world = (1, 2)  # floor and plate: touch arm and objects
         self.obj = (3, 3)
         self.none = (0, 0)
@@ -119,6 +128,14 @@ class _Collision:
         # down; its pads touch only the cube (bit 4), so their touch sensors mean the grip
         self.finger = (2, 0)
         self.pad = (4, 0)
+
+    def disk(self, joint: int) -> tuple[int, int]:
+        """A disk of continuum joint ``joint``: an arm part, plus the joint's own bit in
+        ``"joint"`` mode (bits 8, 16, 32: no other geom has them)."""
+        if self.mode != "joint":
+            return self.arm
+        bit = 8 << joint
+        return (self.arm[0] | bit, self.arm[1] | bit)
 
 
 def _geom(
@@ -175,7 +192,7 @@ def _add_continuum_joint(
             mujoco.mjtGeom.mjGEOM_CYLINDER,
             [jp.disk_radius_m, h / 2.0, 0.0],
             _ORANGE,
-            coll.arm,
+            coll.disk(j),
         )
     return body
 
@@ -349,11 +366,15 @@ def _add_gripper(tip: mujoco.MjsBody, params: ArmParams, coll: _Collision) -> mu
         coll.arm,
         pos=[0.0, 0.0, gp.palm_length_m / 2.0],
     )
-    finger_len = 2.0 * (gp.finger_com_m - gp.palm_length_m)
     if gp.grasp == "weld":
-        half_sep = gp.finger_separation_m / 2.0
-        for side, x in (("left", -half_sep), ("right", half_sep)):
-            _finger_geom(body, side, x, gp.palm_length_m, finger_len, coll.none)
+        # the friction grasp's finger boxes where they close on the cube: they strike the
+        # floor as the published fingers do (docs/bench/paper.md (a‴))
+        x = params.cube.side_m / 2.0 + PAD_HALF[0] + FINGER_BOX_X_M
+        tip_len = gp.finger_tip_m - gp.palm_length_m
+        finger = coll.finger if coll.weld_fingers_collide else coll.none
+        for side, sign in (("left", -1.0), ("right", 1.0)):
+            box = _finger_geom(body, side, sign * x, gp.palm_length_m, tip_len, finger)
+            box.solref = list(gp.finger_solref)
         return body
     _add_fingers(body, params, coll)
     return body
@@ -380,6 +401,7 @@ def _finger_geom(
 
 
 PAD_HALF = (0.004, 0.011, 0.009375)  # a pad box's half sizes: thickness, width, length (m)
+FINGER_BOX_X_M = 0.012  # a finger's collision box centre, outwards from its pads' centre (m)
 
 
 def _add_fingers(palm: mujoco.MjsBody, params: ArmParams, coll: _Collision) -> None:
@@ -410,7 +432,9 @@ def _add_fingers(palm: mujoco.MjsBody, params: ArmParams, coll: _Collision) -> N
         frame = finger.add_body(name=f"{side}_finger_frame")
         _set_inertial(frame, 0.0, (0.0, 0.0, 0.0), [0.0, 0.0, 0.0])
         tip_len = gp.finger_tip_m - gp.palm_length_m
-        box = _finger_geom(frame, side, sign * 0.012, gp.palm_length_m, tip_len, coll.finger)
+        box = _finger_geom(
+            frame, side, sign * FINGER_BOX_X_M, gp.palm_length_m, tip_len, coll.finger
+        )
         box.solref = list(gp.finger_solref)
         # pad k lies k pad lengths nearer the palm than pad 1
         for k, mu in enumerate(gp.pad_friction):
@@ -597,7 +621,7 @@ def build_spec(
     check_task(task)
     p = get_preset(preset)
     params = effective_params(p, params)
-    coll = _Collision(p.arm_self_collision)
+    coll = _Collision(p.arm_self_collision, p.weld_fingers_collide)
 
     spec = mujoco.MjSpec()
     spec.modelname = f"handful_{task}_{p.name}"

@@ -212,3 +212,48 @@ def test_drift_revision_adds_reference_settings_and_downgrades_reference_trials(
     assert con.execute("SELECT COUNT(*) FROM experiments").fetchone() == (1,)
     con.close()
     upgrade(url)
+
+
+def test_fast_preset_rows_become_fast_r1_and_back(tmp_path):
+    """Revision presetr1: experiments, previews and twins stored under ``fast`` were simulated
+    with its first physics, now the preset ``fast-r1``; the way down gives the name back, and
+    other presets are left alone."""
+    url = f"sqlite:///{tmp_path / 'm.db'}"
+    upgrade(url, "claim1")
+    path = url.removeprefix("sqlite:///")
+    con = sqlite3.connect(path)
+    now = "2026-01-01 00:00:00"
+    for i, preset in ((1, "fast"), (2, "reference")):
+        con.execute(
+            "INSERT INTO experiments (id, name, task, target, sim_preset, command_hold, "
+            "objective_unit, levels, horizon, with_release, method, n_initial, seed, "
+            "optimizer_settings, status, notes, version, created_by, created_at, updated_at) "
+            f"VALUES ({i}, 'e', 'tip_speed', 'sim', '{preset}', 'zero', 'm/s', 3, 10, 0, "
+            f"'random', 11, 0, '{{}}', 'active', '', 1, 'olivia', '{now}', '{now}')"
+        )
+    con.execute(
+        'INSERT INTO trials (id, experiment_id, "index", status, status_reason, source, '
+        "note, theta, pressure_schedule_pa, n_measurements, attempts, created_by, "
+        f"created_at, updated_at) VALUES (1, 1, 1, 'pending', '', 'optimizer', '', "
+        f"'[0.5]', '[[1.0]]', 0, 0, 'olivia', '{now}', '{now}')"
+    )
+    con.execute(
+        "INSERT INTO previews (id, trial_id, schedule_hash, hold, sim_preset, job_id, "
+        f"previewed_by, previewed_at) VALUES (1, 1, 'h', 'zero', 'fast', 'j', 'olivia', '{now}')"
+    )
+    con.commit()
+    con.close()
+
+    def presets() -> list[tuple[str, ...]]:
+        con = sqlite3.connect(path)
+        try:
+            exps = con.execute("SELECT sim_preset FROM experiments ORDER BY id").fetchall()
+            return [*exps, *con.execute("SELECT sim_preset FROM previews").fetchall()]
+        finally:
+            con.close()
+
+    upgrade(url, "presetr1")
+    assert presets() == [("fast-r1",), ("reference",), ("fast-r1",)]
+    downgrade(url, "claim1")
+    assert presets() == [("fast",), ("reference",), ("fast",)]
+    upgrade(url)

@@ -168,7 +168,14 @@ def test_reference_preset_matches_the_published_simulator(mode: str) -> None:
 
 @pytest.mark.parametrize("mode", ["zoh", "foh"])
 def test_fast_preset_stays_near_the_published_simulator(mode: str) -> None:
+    """The issue's ``fast`` target on every case, throws and hammer: max tip speed within 10 %,
+    trace correlation ≥ 0.9 (worst +5.6 % and 0.976). Revision 1 missed it on three throws:
+    joints bent past where their disks meet (held case 17 +13 %, ramped case 1 +11 %) and the
+    welded cube's fingers passed through the floor (held case 0, 0.873)."""
     rows = compare(mode, "fast")  # the fast preset welds the cube
-    assert share([abs(r.max_rel) <= 0.10 for r in rows]) >= 0.9
-    assert max(abs(r.max_rel) for r in rows) <= 0.15
-    assert share([r.corr >= 0.9 for r in rows]) >= 0.9 and min(r.corr for r in rows) >= 0.85
+    assert [r.case["id"] for r in rows if abs(r.max_rel) > 0.10] == []
+    assert [r.case["id"] for r in rows if r.corr < 0.9] == []
+    old = compare(mode, "fast-r1")  # the same check tells the revisions apart
+    assert [r.case["id"] for r in old if abs(r.max_rel) > 0.10 or r.corr < 0.9] == (
+        [0, 17] if mode == "zoh" else [1]
+    )

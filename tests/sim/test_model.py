@@ -157,6 +157,55 @@ def test_friction_fingers_hit_the_floor_and_the_pads_touch_only_the_cube() -> No
         assert (data.geom_xpos[pad] - tip) @ axis == pytest.approx(0.1615, abs=1e-9)
 
 
+@pytest.mark.parametrize(
+    ("preset", "same_joint", "other_joints", "weld_fingers_on_floor"),
+    [
+        ("reference", True, True, None),
+        ("fast", True, False, True),
+        ("fast-r1", False, False, False),
+    ],
+)
+def test_which_arm_parts_touch_one_another_in_each_preset(
+    preset: str, same_joint: bool, other_joints: bool, weld_fingers_on_floor: bool | None
+) -> None:
+    """``fast`` keeps the contacts between one joint's disks (what stops its bend) and drops
+    the rest of the arm's; its welded fingers strike the floor 0.17 m beyond the site, as the
+    friction grasp's do. ``fast-r1`` had neither."""
+    m = build_model("throw", preset)
+
+    def collides(a: str, b: str) -> bool:
+        ga, gb = m.geom(a).id, m.geom(b).id
+        t, c = m.geom_contype, m.geom_conaffinity
+        return bool(t[ga] & c[gb] or t[gb] & c[ga])
+
+    assert collides("j0_disk1", "j0_disk3") is same_joint
+    assert collides("j2_disk2", "j2_disk5") is same_joint
+    assert collides("j0_disk5", "j2_disk8") is other_joints
+    assert collides("link0", "j2_disk4") is other_joints
+    assert collides("j1_disk3", "floor") and collides("link1", "floor")  # the world: always
+    if weld_fingers_on_floor is not None:
+        for side in ("left", "right"):
+            assert collides(f"{side}_finger", "floor") is weld_fingers_on_floor
+            assert not collides(f"{side}_finger", "j2_disk9")
+        data = mujoco.MjData(m)
+        mujoco.mj_forward(m, data)
+        tip = data.site_xpos[m.site(EEF_SITE).id]
+        axis = data.site_xmat[m.site(EEF_SITE).id].reshape(3, 3)[:, 2]
+        finger = m.geom("left_finger").id
+        if weld_fingers_on_floor:
+            far = (data.geom_xpos[finger] - tip) @ axis + m.geom_size[finger][2]
+            assert far == pytest.approx(0.17, abs=1e-9)
+
+
+def test_an_unknown_arm_self_collision_is_refused() -> None:
+    from dataclasses import replace
+
+    from app.sim.presets import FAST
+
+    with pytest.raises(ValueError, match="unknown arm_self_collision 'some'; choose one of"):
+        replace(FAST, arm_self_collision="some")
+
+
 def test_gravity_and_reference_options() -> None:
     m = build_model("hammer", "reference")
     assert m.opt.timestep == 1e-3 and m.opt.iterations == 50 and m.opt.tolerance == 1e-10
