@@ -34,9 +34,7 @@ from app.bench.specs import RunSpec
 from app.policy import PAPER_COMMAND_HOLD, PAPER_OBJECTIVE_RULE, PAPER_PRESET
 
 
-def bo_lei_spec(
-    task: str, levels: int, seed: int, fit: str, preset: str = PAPER_PRESET
-) -> RunSpec:
+def bo_lei_spec(task: str, levels: int, seed: int, fit: str, preset: str = PAPER_PRESET) -> RunSpec:
     """The grid's BO-LEI run with ``--bo-fit fit`` (the paper's settings otherwise)."""
     return RunSpec(
         "bo-lei",

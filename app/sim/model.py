@@ -29,7 +29,7 @@ import numpy as np
 
 from app.policy import TASKS
 from app.sim.params import ArmParams, LinkParams
-from app.sim.presets import ARM_SELF_COLLISION, Preset, get_preset
+from app.sim.presets import Preset, get_preset
 
 EEF_SITE = "eef"
 GRIP_WELD = "grip"
@@ -107,19 +107,14 @@ def _set_inertial(
 
 
 class _Collision:
-    """contype/conaffinity pairs: arm parts may be told not to collide with one another.
+    """contype/conaffinity pairs: arm parts may be told not to collide with one another
+    (``fast-r1``; every other preset keeps the arm's self-contacts, MuJoCo filtering parent and
+    child, of which those between one joint's disks, where its bend stops, are nearly all:
+    docs/bench/paper.md (a‴)), and the welded gripper's fingers to pass through the floor."""
 
-    ``arm_self_collision`` (a preset's): ``"all"``, every arm part with every other (as MuJoCo
-    filters parent and child); ``"joint"``, only the disks of one continuum joint with one
-    another (what stops a joint bending further: nearly all of the arm's self-contacts,
-    docs/bench/paper.md (a‴)); ``"none"``.
-    """
-
-    def __init__(self, arm_self_collision: str, weld_fingers_collide: bool = True) -> None:
-        assert arm_self_collision in ARM_SELF_COLLISION  # Preset checks it
-        self.mode = arm_self_collision
+    def __init__(self, arm_self_collision: bool, weld_fingers_collide: bool = True) -> None:
         self.weld_fingers_collide = weld_fingers_collide
-        self.arm = (1, 1) if arm_self_collision == "all" else (2, 1)
+        self.arm = (1, 1) if arm_self_collision else (2, 1)
         self.world = (1, 2)  # floor and plate: touch arm and objects
         self.obj = (3, 3)
         self.none = (0, 0)
@@ -128,14 +123,6 @@ class _Collision:
         # down; its pads touch only the cube (bit 4), so their touch sensors mean the grip
         self.finger = (2, 0)
         self.pad = (4, 0)
-
-    def disk(self, joint: int) -> tuple[int, int]:
-        """A disk of continuum joint ``joint``: an arm part, plus the joint's own bit in
-        ``"joint"`` mode (bits 8, 16, 32: no other geom has them)."""
-        if self.mode != "joint":
-            return self.arm
-        bit = 8 << joint
-        return (self.arm[0] | bit, self.arm[1] | bit)
 
 
 def _geom(
@@ -192,7 +179,7 @@ def _add_continuum_joint(
             mujoco.mjtGeom.mjGEOM_CYLINDER,
             [jp.disk_radius_m, h / 2.0, 0.0],
             _ORANGE,
-            coll.disk(j),
+            coll.arm,
         )
     return body
 

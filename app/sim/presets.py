@@ -6,9 +6,6 @@ from dataclasses import dataclass, replace
 
 import mujoco
 
-#: a preset's ``arm_self_collision`` choices
-ARM_SELF_COLLISION = ("all", "joint", "none")
-
 
 @dataclass(frozen=True)
 class Preset:
@@ -25,8 +22,8 @@ class Preset:
         cone: friction cone, "elliptic" or "pyramidal".
         jacobian: "dense", "sparse" or "auto".
         n_disks: disks per continuum joint, or None to take ``ArmParams.n_disks``.
-        arm_self_collision: which arm parts collide with one another: "all" (disks and links),
-            "joint" (only the disks of one continuum joint, which bound its bend) or "none".
+        arm_self_collision: whether arm parts (disks, links) collide with one another; the
+            disks of one continuum joint meet where its bend stops.
         grasp: the throw's grasp ("friction" or "weld"), or None to take
             ``GripperParams.grasp``. The friction grasp needs small steps: at 5 ms its stiff
             pad contacts fling or drop the cube (docs/bench/paper.md), so ``fast`` welds.
@@ -44,16 +41,9 @@ class Preset:
     cone: str
     jacobian: str
     n_disks: int | None = None
-    arm_self_collision: str = "all"
+    arm_self_collision: bool = True
     grasp: str | None = None
     weld_fingers_collide: bool = True
-
-    def __post_init__(self) -> None:
-        if self.arm_self_collision not in ARM_SELF_COLLISION:
-            raise ValueError(
-                f"unknown arm_self_collision {self.arm_self_collision!r}; "
-                f"choose one of {', '.join(ARM_SELF_COLLISION)}"
-            )
 
     def apply(self, option: mujoco.MjOption | object) -> None:
         """Write these options onto a spec's or model's ``option``."""
@@ -94,12 +84,11 @@ REFERENCE = Preset(
     jacobian="sparse",
 )
 
-# Same arm (10 disks: fewer disks change the geometry), a 5x larger step with implicitfast, a
-# loose solver, and of the arm-on-arm contacts only those between one joint's disks (what stops
-# its bend; the floor, plate and objects still collide); the cube is welded (the friction grasp
-# needs the reference step). Revision 2 (session 12): the joints' disk contacts and the weld's
-# finger boxes, which put it within 10 % / 0.9 of every published reference case
-# (docs/bench/paper.md (a‴)); revision 1 had neither.
+# Same arm (10 disks: fewer disks change the geometry) and contacts, a 5x larger step with
+# implicitfast and a loose solver; the cube is welded (the friction grasp needs the reference
+# step). Revision 2 (session 12): the arm's self-contacts and the welded fingers' floor
+# contacts, which put it within 10 % / 0.9 of every published reference case
+# (docs/bench/paper.md (a‴)); revision 1 (``fast-r1``) had neither.
 # Checked against REFERENCE by `handful bench sim` (docs/bench/sim.md).
 FAST = Preset(
     name="fast",
@@ -111,15 +100,14 @@ FAST = Preset(
     ls_iterations=8,
     cone="pyramidal",
     jacobian="dense",
-    arm_self_collision="joint",
     grasp="weld",
 )
 
-# ``fast`` before session 12 (revision 1): no arm-on-arm contacts at all, so a joint could bend
-# past where its disks meet, and the welded cube's fingers passed through the floor. Kept, and
+# ``fast`` before session 12 (revision 1): no arm-on-arm contacts, so a joint could bend past
+# where its disks meet, and the welded cube's fingers passed through the floor. Kept, and
 # named, so that results made with it (the committed benchmark caches, experiments stored
 # before migration 0010) reproduce; not for new work.
-FAST_R1 = replace(FAST, name="fast-r1", arm_self_collision="none", weld_fingers_collide=False)
+FAST_R1 = replace(FAST, name="fast-r1", arm_self_collision=False, weld_fingers_collide=False)
 
 PRESETS: dict[str, Preset] = {p.name: p for p in (REFERENCE, FAST, FAST_R1)}
 
