@@ -19,6 +19,7 @@ from __future__ import annotations
 from app.bench.backends import run_sweep
 from app.bench.cache import (
     RUN_COLUMNS,
+    RunBusy,
     cached_rows,
     read_run,
     run_dir,
@@ -66,6 +67,7 @@ __all__ = [
     "RUN_COLUMNS",
     "SWEEP_METHODS",
     "TASKS",
+    "RunBusy",
     "RunSpec",
     "best_at",
     "cached_rows",

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from app.bench.cache import cached_rows, run_dir, trials_done, write_run
+from app.bench.cache import RunBusy, cached_rows, run_dir, trials_done, write_run
 from app.bench.runner import run_one
 from app.bench.specs import RunSpec
 from app.optim import SettingsError
@@ -25,13 +25,24 @@ def run_sweep(
     address: str | None = None,
     workers: int | None = None,
     progress: bool = True,
+    busy: list[RunBusy] | None = None,
 ) -> dict[RunSpec, list[dict[str, Any]]]:
     """Run every spec not already cached in ``out``; return all runs' rows.
 
     Backends: ``local`` (a process pool over ``workers`` cores, default all) or ``ray``
     (``ray.init(address)``; a local Ray instance when ``address`` is None). Progress bars count
     runs and trials (trials are read from the run caches as they grow).
+
+    A run another process is writing (``RunBusy``, ``app.bench.cache.run_lock``) is left to it:
+    with a ``busy`` list the error is appended there and the sweep goes on without that run
+    (it is not in the result); without one it is raised.
     """
+
+    def left_to_another(exc: RunBusy) -> None:
+        if busy is None:
+            raise exc
+        busy.append(exc)
+
     from tqdm import tqdm
 
     if backend not in ("local", "ray"):
@@ -63,7 +74,10 @@ def run_sweep(
     try:
         if todo and backend == "local" and n_workers == 1:
             for s in todo:
-                results[s] = run_one(s, out)
+                try:
+                    results[s] = run_one(s, out)
+                except RunBusy as exc:
+                    left_to_another(exc)
                 bar_runs.update(1)
                 refresh()
         elif todo and backend == "local":
@@ -77,7 +91,10 @@ def run_sweep(
                 while pending:
                     finished, pending = wait(pending, timeout=1.0, return_when=FIRST_COMPLETED)
                     for fut in finished:
-                        results[futs[fut]] = fut.result()
+                        try:
+                            results[futs[fut]] = fut.result()
+                        except RunBusy as exc:
+                            left_to_another(exc)
                         bar_runs.update(1)
                     refresh()
         elif todo:
@@ -97,7 +114,12 @@ def run_sweep(
                     ready, pending_refs = ray.wait(pending_refs, num_returns=1, timeout=1.0)
                     for ref in ready:
                         s = refs[ref]
-                        results[s] = ray.get(ref)
+                        try:
+                            results[s] = ray.get(ref)  # Ray's error is also a RunBusy
+                        except RunBusy as exc:
+                            left_to_another(exc)
+                            bar_runs.update(1)
+                            continue
                         # On a cluster the workers' disks are not ours: cache here too.
                         if cached_rows(s, out) is None:
                             write_run(s, out, results[s])

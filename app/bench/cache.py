@@ -1,11 +1,15 @@
 """The run cache: ``DIR/runs/<key>.part.csv`` grows one line per finished trial (with θ); a
-finished run is renamed ``<key>.csv``. An interrupted run resumes from the lines before a cut."""
+finished run is renamed ``<key>.csv``. An interrupted run resumes from the lines before a cut.
+While a process writes a run it holds ``<key>.lock``, so a second one cannot write it too."""
 
 from __future__ import annotations
 
 import csv
+import fcntl
 import json
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -97,3 +101,42 @@ def trials_done(spec: RunSpec, out: Path) -> int:
             except OSError:
                 return 0
     return 0
+
+
+class RunBusy(RuntimeError):
+    """Another process is writing this run (it holds the run's lock)."""
+
+
+@contextmanager
+def run_lock(spec: RunSpec, out: Path) -> Iterator[None]:
+    """Hold ``runs/<key>.lock`` while this process writes the run: an exclusive ``flock``, which
+    the system lets go however the process ends (so a killed run never blocks the next). Raises
+    RunBusy, naming the holder's pid, when another process holds it: two writers would
+    interleave their trials in one part file."""
+    run_dir(out).mkdir(parents=True, exist_ok=True)
+    path = run_dir(out) / f"{spec.key}.lock"
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+            os.close(fd)
+            raise RunBusy(
+                f"run {spec.key} in {out} is being written by another process (pid {holder}): "
+                "wait for it, or run other cells (two writers would mix their trials)"
+            ) from None
+        try:
+            same = os.fstat(fd).st_ino == os.stat(path).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)  # the last holder removed this file as we opened it: lock the new one
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        path.unlink(missing_ok=True)
+        os.close(fd)

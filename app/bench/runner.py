@@ -22,6 +22,7 @@ from app.bench.cache import (
     read_run,
     run_dir,
     run_line,
+    run_lock,
     write_part,
     write_run,
 )
@@ -148,12 +149,22 @@ def run_one(
     from app.procs import set_torch_threads
 
     set_torch_threads(Settings().torch_threads)
-    if out is not None:
-        done = cached_rows(spec, out)
+    if out is None:
+        return run_rl(spec) if spec.is_rl else _run_optimiser(spec, None, objective)
+    done = cached_rows(spec, out)
+    if done is not None:
+        return done
+    with run_lock(spec, out):  # RunBusy if another process writes this run
+        done = cached_rows(spec, out)  # it may have finished while we looked
         if done is not None:
             return done
-    if spec.is_rl:
-        return run_rl(spec, out)
+        return run_rl(spec, out) if spec.is_rl else _run_optimiser(spec, out, objective)
+
+
+def _run_optimiser(
+    spec: RunSpec, out: Path | None, objective: Callable[[np.ndarray], float] | None
+) -> list[dict[str, Any]]:
+    """``run_one`` for an optimiser, its lock held (``out``) or without a cache."""
     f = objective or objective_fn(
         spec.task, spec.levels, spec.preset, spec.command_hold, spec.objective_rule
     )
@@ -184,7 +195,8 @@ def run_one(
 
 
 def run_rl(spec: RunSpec, out: Path | None = None) -> list[dict[str, Any]]:
-    """Run (or resume) one RL run (REDQ, ``app.rl``): one episode = one trial = one row, whose
+    """Run (or resume) one RL run (REDQ, ``app.rl``; ``run_one`` holds its lock): one episode =
+    one trial = one row, whose
     θ is the episode's commands (H rows of 12 pressures as fractions of the maximum, plus the
     gripper command when throwing; rounded to 1e-4) and objective the simulator's.
 

@@ -44,6 +44,15 @@ def _fail(message: str) -> None:
     raise typer.Exit(2)
 
 
+def _report_busy(busy: list[Any]) -> None:
+    """Runs another process was writing (``app.bench.RunBusy``), left to it: one line each on
+    stderr and exit 1, after the outputs were written from what is stored."""
+    if busy:
+        for exc in busy:
+            typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(1)
+
+
 # The options `handful bench optim` and `handful bench paper` share (one declaration each).
 PRESET = typer.Option(
     None, "--preset", help="simulator preset: reference, fast (default: the paper-matching)"
@@ -166,6 +175,7 @@ def optim(
         whole = bench.make_specs(methods=[*chosen, *others], rl_settings=rl_settings, **grid)
     except SettingsError as exc:
         _fail(str(exc))
+    busy: list[bench.RunBusy] = []  # runs another process was writing: left to it
     if cached_only:
         runs = {s: r for s in specs if (r := bench.stored_rows(s, out))}
         if not runs:
@@ -179,6 +189,7 @@ def optim(
             address=address,
             workers=workers or None,
             progress=progress,
+            busy=busy,
         )
         ran = {s.key for s in runs}
         runs |= {s: r for s in whole if s.key not in ran and (r := bench.stored_rows(s, out))}
@@ -186,6 +197,7 @@ def optim(
     bench.write_outputs(out, specs, runs, budgets)
     typer.echo((out / "summary.md").read_text())
     typer.echo(f"wrote {out / 'results.csv'}, {out / 'summary.md'}, {out / 'curves.png'}")
+    _report_busy(busy)
 
 
 def register(bench_app: typer.Typer) -> None:

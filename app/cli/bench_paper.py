@@ -19,6 +19,7 @@ from app.cli.bench_optim import (
     WORKERS,
     _fail,
     _key_values,
+    _report_busy,
     check_execution,
     sim_settings,
 )
@@ -68,8 +69,8 @@ def paper(
     P in 2, 5, 7, 10, after 100 / 500 / 10K trials; plus handful's default method) and write
     DIR/paper.md (the paper's tables with handful's numbers beside them), DIR/results.csv and
     DIR/paper_curves.png. Finished runs are cached: run again to resume or extend."""
+    from app.bench import RunBusy, run_sweep, stored_rows
     from app.bench import paper as grid_mod
-    from app.bench import run_sweep, stored_rows
     from app.bench.report import plot_curves, write_results_csv
     from app.bench.specs import SWEEP_METHODS as METHODS
     from app.bench.stats import result_rows
@@ -107,6 +108,7 @@ def paper(
         stored_specs = grid_mod.run_specs(whole, **settings)
     except SettingsError as exc:
         _fail(str(exc))
+    busy: list[RunBusy] = []  # runs another process was writing: left to it
     if cached_only:
         runs = {s: r for s in specs if (r := stored_rows(s, out))}
         if not runs:
@@ -115,7 +117,13 @@ def paper(
         n_trials = sum(s.budget for s in specs)
         typer.echo(f"{len(chosen)} cells → {len(specs)} runs, {n_trials:,} trials; cache {out}")
         runs = run_sweep(
-            specs, out, backend=backend, address=address, workers=workers or None, progress=progress
+            specs,
+            out,
+            backend=backend,
+            address=address,
+            workers=workers or None,
+            progress=progress,
+            busy=busy,
         )
         ran = {s.key for s in runs}
         runs |= {s: r for s in stored_specs if s.key not in ran and (r := stored_rows(s, out))}
@@ -138,6 +146,7 @@ def paper(
         plot_curves(rows, out / "paper_curves.png")
     typer.echo(text)
     typer.echo(f"wrote {out / 'paper.md'}, {out / 'results.csv'}, {out / 'paper_curves.png'}")
+    _report_busy(busy)
 
 
 def register(bench_app: typer.Typer) -> None:

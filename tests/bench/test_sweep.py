@@ -270,3 +270,56 @@ def test_curves_tell_a_dozen_methods_apart(tmp_path, monkeypatch):
     [ax] = [a for a in saved[0].axes if a.lines]
     styles = {(str(line.get_color()), line.get_linestyle()) for line in ax.lines}
     assert len(ax.lines) == 12 and len(styles) == 12
+
+
+def test_a_run_another_process_writes_is_left_to_it_and_named(tmp_path):
+    """Two writers of one run would interleave their trials in its part file: the second is
+    refused (RunBusy, naming the writer's pid); a sweep goes on without that run and the CLI
+    writes its outputs, then says which runs it left, one line each, and exits 1."""
+    from app.bench.cache import RunBusy, run_dir, run_lock
+
+    out = tmp_path / "sweep"
+    held = bench.RunSpec("random", "hammer", 2, 0, 3, "fast", command_hold="linear",
+                         objective_rule="published")  # fmt: skip
+    free = bench.RunSpec("random", "hammer", 2, 1, 3, "fast", command_hold="linear",
+                         objective_rule="published")  # fmt: skip
+    holder = subprocess.Popen(  # another process writing `held`
+        [sys.executable, "-c", "import sys, time; from pathlib import Path; "
+         "from app import bench; from app.bench.cache import run_lock; "
+         "spec = bench.RunSpec('random', 'hammer', 2, 0, 3, 'fast', command_hold='linear', "
+         "objective_rule='published'); "
+         "lock = run_lock(spec, Path(sys.argv[1])); lock.__enter__(); print('held', flush=True); "
+         "time.sleep(120)", str(out)],
+        stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+        with pytest.raises(RunBusy, match=rf"hammer_P2_random_s0_fast.*pid {holder.pid}\)"):
+            bench.run_one(held, out)
+        busy: list[RunBusy] = []
+        runs = bench.run_sweep([held, free], out, workers=1, progress=False, busy=busy)
+        assert list(runs) == [free] and len(runs[free]) == 3
+        assert [str(e).split(" in ")[0] for e in busy] == [f"run {held.key}"]
+        with pytest.raises(RunBusy):  # without a list to put it in, it is raised
+            bench.run_sweep([held], out, workers=1, progress=False)
+        args = ["bench", "optim", "--task", "hammer", "--levels", "2", "--budget", "3",
+                "--seeds", "2", "--methods", "random", "--out", str(out), "--workers", "1",
+                "--no-progress"]  # fmt: skip
+        cli = handful(*args, cwd=tmp_path)
+        assert cli.returncode == 1, cli.stderr
+        lines = cli.stderr.strip().splitlines()
+        assert len(lines) == 1 and f"pid {holder.pid}" in lines[0] and held.key in lines[0]
+        assert (out / "summary.md").exists()  # the outputs, from what is stored
+    finally:
+        holder.kill()
+        holder.wait()
+    # the system let go of the killed holder's lock: the run goes on, and leaves no lock file
+    assert len(bench.run_one(held, out)) == 3
+    assert not list(run_dir(out).glob("*.lock"))
+    # one process, a second writer: refused too
+    with (
+        run_lock(held, out),
+        pytest.raises(RunBusy, match=rf"pid {os.getpid()}\)"),
+        run_lock(held, out),
+    ):
+        pass
