@@ -55,7 +55,10 @@ def _report_busy(busy: list[Any]) -> None:
 
 # The options `handful bench optim` and `handful bench paper` share (one declaration each).
 PRESET = typer.Option(
-    None, "--preset", help="simulator preset: reference, fast (default: the paper-matching)"
+    None,
+    "--preset",
+    help="simulator preset: reference, fast (default: the paper-matching) or fast-r1 (fast "
+    "before session 12: the committed caches)",
 )
 COMMAND_HOLD = typer.Option(
     None,

@@ -103,7 +103,12 @@ def _summary_line(summary: dict[str, Any]) -> str:
 
 def sim(
     task: Annotated[str, typer.Option(help="throw, hammer or tip_speed.")] = "",
-    preset: Annotated[str, typer.Option(help="reference or fast.")] = "reference",
+    preset: Annotated[
+        str,
+        typer.Option(
+            help="reference, fast, or fast-r1 (fast before session 12, for stored results)."
+        ),
+    ] = "reference",
     command_hold: Annotated[
         str, typer.Option(help="zero (held each step) or linear (ramped from the last).")
     ] = "zero",
