@@ -2,14 +2,16 @@
 
     python benchmarks/sweep_ranking.py --grid docs/bench/paper/grid/results.csv \
         --sweep docs/bench/optim/paper_sweep/results.csv --levels 2 5 --budget 100
+    python benchmarks/sweep_ranking.py --sweep docs/bench/optim/paper_sweep/results.csv
 
 The paper grid (``handful bench paper``) holds random search, the paper's CEM (σ₀ = 1/√12),
 BO-LEI, BO-UCB and handful's default (BO fits ``warm``); the sweep's own cache (``handful bench
 optim``) holds the other methods (CEM with handful's σ₀ = 1, CMA-ES, Optuna, bo-levels, ...;
 the paper's full GP refits). Both must come from one preset, command hold and scoring rule;
-the script refuses a mix. Per task and P it prints every method's best objective after
-``--budget`` trials, mean ± std (ddof 0) over the seeds that reached it (n), best first, and
-Welch's two-sided p of handful's default against each.
+the script refuses a mix. ``--grid`` may be left out where the sweep holds every method,
+handful's default included (the sweep in `fast` revision 2). Per task and P it prints every
+method's best objective after ``--budget`` trials, mean ± std (ddof 0) over the seeds that
+reached it (n), best first, and Welch's two-sided p of handful's default against each.
 """
 
 from __future__ import annotations
@@ -38,12 +40,14 @@ def load(path: Path, source: str) -> list[dict]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--grid", type=Path, required=True, help="the paper grid's results.csv")
+    ap.add_argument(
+        "--grid", type=Path, default=None, help="the paper grid's results.csv (optional)"
+    )
     ap.add_argument("--sweep", type=Path, required=True, help="the sweep's results.csv")
     ap.add_argument("--levels", type=int, nargs="+", default=[2, 5])
     ap.add_argument("--budget", type=int, default=100)
     args = ap.parse_args()
-    rows = load(args.grid, "grid") + load(args.sweep, "sweep")
+    rows = (load(args.grid, "grid") if args.grid else []) + load(args.sweep, "sweep")
     settings = {(r["preset"], r["command_hold"], r["objective_rule"]) for r in rows}
     if len(settings) != 1:
         raise SystemExit(f"the two caches mix settings (preset, hold, rule): {sorted(settings)}")

@@ -1,0 +1,134 @@
+"""Does `fast`'s weld flatter the optimisers? Replay each run's best throw with the friction grasp.
+
+`fast` (the paper-matching preset) welds the cube to the gripper, so it can never slip out; the
+reference preset holds it by pad friction (slip verdicts agree with the published simulator's on
+17 of 18 reference throws, docs/bench/paper.md (a)). This takes every cached throw run of a sweep
+folder in one (preset, command hold, scoring rule), picks the run's best θ (what an optimiser
+would hand over), and runs it again in ``--against`` (default: reference, friction grasp) with
+the same hold and rule. Printed per method: how many best throws the friction grasp loses before
+the release step, and the objective in each preset (mean over seeds).
+
+    nice -n 10 python benchmarks/weld_check.py --sweep docs/bench/optim/paper_sweep \
+        --preset fast --command-hold linear --objective published --levels 2 5 \
+        --json docs/bench/paper/weld_check_fast_linear.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from app.bench.cache import read_run
+from app.policy import Policy
+from app.sim import SimulationDiverged, rollout
+
+RUN = re.compile(r"^throw_P(?P<P>\d+)_(?P<method>.+)_s(?P<seed>\d+)_(?P<rest>.+)\.csv$")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sweep", type=Path, required=True, help="a sweep folder (holds runs/)")
+    ap.add_argument("--preset", default="fast")
+    ap.add_argument("--command-hold", default="linear")
+    ap.add_argument("--objective", default="published")
+    ap.add_argument("--against", default="reference")
+    ap.add_argument("--levels", type=int, nargs="+", default=[2, 5])
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args()
+    suffix = f"{args.preset}_{args.command_hold}_{args.objective}"
+    runs = []
+    for path in sorted((args.sweep / "runs").glob("throw_P*.csv")):
+        m = RUN.match(path.name)
+        if not m or m["rest"] != suffix or path.name.endswith(".part.csv"):
+            continue
+        if int(m["P"]) in args.levels:
+            runs.append((int(m["P"]), m["method"], int(m["seed"]), path))
+    if not runs:
+        sys.exit(f"no finished throw runs *_{suffix}.csv in {args.sweep / 'runs'}")
+    records = []
+    t0 = time.perf_counter()
+    for i, (levels, method, seed, path) in enumerate(runs, 1):
+        rows = read_run(path)
+        best = max(rows, key=lambda r: r["objective"] if np.isfinite(r["objective"]) else -1e9)
+        theta = np.asarray(best["theta"], dtype=np.float64)
+        d = Policy(levels=levels, with_release=True).decode(np.clip(theta, 0.0, 1.0))
+        rec = {
+            "P": levels,
+            "method": method,
+            "seed": seed,
+            "trial": int(best["trial"]),
+            "release_step": d.release_step,
+            "J_sweep": float(best["objective"]),
+        }
+        for name, preset in (("own", args.preset), ("against", args.against)):
+            try:
+                res = rollout(
+                    "throw",
+                    d.pressure_schedule_pa,
+                    release_step=d.release_step,
+                    preset=preset,
+                    command_hold=args.command_hold,
+                    objective_rule=args.objective,
+                )
+            except SimulationDiverged as exc:
+                rec[f"J_{name}"] = None
+                rec[f"error_{name}"] = str(exc)
+                continue
+            rec[f"J_{name}"] = float(res.objective)
+            rec[f"lost_{name}"] = res.cube_lost_before_release
+            rec[f"D_cube_{name}"] = float(res.objective_terms["cube_distance_m"])
+        records.append(rec)
+        eta = (time.perf_counter() - t0) / i * (len(runs) - i)
+        print(
+            f"[{i}/{len(runs)}] P={levels} {method} s{seed}: J {rec['J_own']:.2f} → "
+            f"{rec.get('J_against') or float('nan'):.2f} lost={rec.get('lost_against')} "
+            f"(ETA {eta / 60:.1f} min)",
+            file=sys.stderr,
+        )
+    groups: dict[tuple[int, str], list[dict]] = defaultdict(list)
+    for r in records:
+        groups[(r["P"], r["method"])].append(r)
+    print(
+        f"\n*best θ of each run: sweep preset {args.preset}, command hold {args.command_hold}, "
+        f"scoring rule {args.objective}; replayed in {args.against} (its own grasp)*\n"
+    )
+    print(
+        f"| P | method | runs | lost before t_R in {args.against} | J in {args.preset} | "
+        f"J in {args.against} | D_cube {args.preset} / {args.against} (m) |"
+    )
+    print("|---:|---|---:|---:|---:|---:|---:|")
+    for (levels, method), rs in sorted(groups.items()):
+        own = np.array([r["J_own"] for r in rs])
+        ag = np.array([np.nan if r.get("J_against") is None else r["J_against"] for r in rs])
+        lost = sum(bool(r.get("lost_against")) for r in rs)
+        d_own = np.nanmean([r.get("D_cube_own", np.nan) for r in rs])
+        d_ag = np.nanmean([r.get("D_cube_against", np.nan) for r in rs])
+        print(
+            f"| {levels} | {method} | {len(rs)} | {lost} | {own.mean():.2f} ± {own.std():.2f} | "
+            f"{np.nanmean(ag):.2f} ± {np.nanstd(ag):.2f} | {d_own:.2f} / {d_ag:.2f} |"
+        )
+    if args.json:
+        args.json.write_text(
+            json.dumps(
+                {
+                    "sweep": str(args.sweep),
+                    "preset": args.preset,
+                    "command_hold": args.command_hold,
+                    "objective_rule": args.objective,
+                    "against": args.against,
+                    "records": records,
+                },
+                indent=1,
+            )
+        )
+
+
+if __name__ == "__main__":
+    main()
