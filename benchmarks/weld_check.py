@@ -10,6 +10,7 @@ the release step, and the objective in each preset (mean over seeds).
 
     nice -n 10 python benchmarks/weld_check.py --sweep docs/bench/optim/paper_sweep \
         --preset fast --command-hold linear --objective published --levels 2 5 \
+        --published tests/sim/data/published_optimised_throws.json \
         --json docs/bench/paper/weld_check_fast_linear.json
 """
 
@@ -41,6 +42,13 @@ def main() -> None:
     ap.add_argument("--against", default="reference")
     ap.add_argument("--levels", type=int, nargs="+", default=[2, 5])
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument(
+        "--published",
+        type=Path,
+        default=None,
+        help="the same best θ run through the published simulator "
+        "(tests/sim/data/published_optimised_throws.json): adds its J and verdicts",
+    )
     args = ap.parse_args()
     suffix = f"{args.preset}_{args.command_hold}_{args.objective}"
     runs = []
@@ -92,6 +100,14 @@ def main() -> None:
             f"(ETA {eta / 60:.1f} min)",
             file=sys.stderr,
         )
+    published = {}
+    if args.published:
+        published = {c["id"]: c for c in json.loads(args.published.read_text())["cases"]}
+    for r in records:
+        pub = published.get(f"P{r['P']}_{r['method']}_s{r['seed']}")
+        if pub is not None and pub["release_step"] == r["release_step"]:
+            r["J_published"] = pub["J_published"]
+            r["lost_published"] = pub["cube_lost_before_release"]
     groups: dict[tuple[int, str], list[dict]] = defaultdict(list)
     for r in records:
         groups[(r["P"], r["method"])].append(r)
@@ -100,20 +116,40 @@ def main() -> None:
         f"scoring rule {args.objective}; replayed in {args.against} (its own grasp)*\n"
     )
     print(
-        f"| P | method | runs | lost before t_R in {args.against} | J in {args.preset} | "
-        f"J in {args.against} | D_cube {args.preset} / {args.against} (m) |"
+        f"| P | method | runs | lost before t_R in {args.against} / published | "
+        f"J in {args.preset} | J in {args.against} | J published | "
+        f"D_cube {args.preset} / {args.against} (m) |"
     )
-    print("|---:|---|---:|---:|---:|---:|---:|")
+    print("|---:|---|---:|---:|---:|---:|---:|---:|")
     for (levels, method), rs in sorted(groups.items()):
         own = np.array([r["J_own"] for r in rs])
         ag = np.array([np.nan if r.get("J_against") is None else r["J_against"] for r in rs])
         lost = sum(bool(r.get("lost_against")) for r in rs)
+        pub = [r for r in rs if "J_published" in r]
+        lost_pub = sum(bool(r["lost_published"]) for r in pub)
+        j_pub = np.array([r["J_published"] for r in pub])
+        pub_cells = (
+            (f"{lost_pub} of {len(pub)}", f"{j_pub.mean():.2f} ± {j_pub.std():.2f}")
+            if pub
+            else ("–", "–")
+        )
         d_own = np.nanmean([r.get("D_cube_own", np.nan) for r in rs])
         d_ag = np.nanmean([r.get("D_cube_against", np.nan) for r in rs])
         print(
-            f"| {levels} | {method} | {len(rs)} | {lost} | {own.mean():.2f} ± {own.std():.2f} | "
-            f"{np.nanmean(ag):.2f} ± {np.nanstd(ag):.2f} | {d_own:.2f} / {d_ag:.2f} |"
+            f"| {levels} | {method} | {len(rs)} | {lost} / {pub_cells[0]} | "
+            f"{own.mean():.2f} ± {own.std():.2f} | {np.nanmean(ag):.2f} ± {np.nanstd(ag):.2f} | "
+            f"{pub_cells[1]} | {d_own:.2f} / {d_ag:.2f} |"
         )
+    both = [r for r in records if "J_published" in r and r.get("J_against") is not None]
+    if both:
+        jp = np.array([r["J_published"] for r in both])
+        for key, name in (("J_own", args.preset), ("J_against", args.against)):
+            j = np.array([r[key] for r in both])
+            print(
+                f"\n{name} against the published simulator on {len(both)} best throws: "
+                f"|ΔJ| mean {np.abs(j - jp).mean():.2f}, median {np.median(np.abs(j - jp)):.2f}, "
+                f"mean ΔJ {np.mean(j - jp):+.2f}, correlation {np.corrcoef(j, jp)[0, 1]:.3f}"
+            )
     if args.json:
         args.json.write_text(
             json.dumps(
