@@ -15,7 +15,7 @@ The throw's grasp (``GripperParams.grasp``): ``"friction"`` builds two sliding f
 actuator (``gripper``, after the 12 chambers; command 0 = open, any command ≥ ``GRIP_CLOSED_FROM``
 = closed, finger force limited to ±``pad_force_n``), with touch sensors on the pads and the
 published model's ``impratio`` 10 (its 5 no-slip iterations are optional, off by default);
-``"weld"`` and ``"weld-slip"`` weld the cube to the palm (equality ``grip``) instead.
+``"weld"`` welds the cube to the palm (equality ``grip``) instead.
 """
 
 from __future__ import annotations
@@ -330,7 +330,7 @@ def _add_gripper(tip: mujoco.MjsBody, params: ArmParams, coll: _Collision) -> mu
     gp = params.gripper
     site_z = params.eef_offset_disk_heights * params.disk_height_m
     body = tip.add_body(name=GRIPPER_BODY, pos=[0.0, 0.0, site_z])
-    if gp.welded:
+    if gp.grasp == "weld":
         m = gp.mass_kg
         com = (gp.palm_mass_kg * gp.palm_com_m + gp.finger_mass_kg * gp.finger_com_m) / m
         palm = _cylinder_inertia(gp.palm_mass_kg, gp.palm_radius_m, gp.palm_length_m)
@@ -353,7 +353,7 @@ def _add_gripper(tip: mujoco.MjsBody, params: ArmParams, coll: _Collision) -> mu
         coll.arm,
         pos=[0.0, 0.0, gp.palm_length_m / 2.0],
     )
-    if gp.welded:
+    if gp.grasp == "weld":
         # the friction grasp's finger boxes where they close on the cube: they strike the
         # floor as the published fingers do (docs/bench/paper.md (a‴))
         x = params.cube.side_m / 2.0 + PAD_HALF[0] + FINGER_BOX_X_M
@@ -514,7 +514,7 @@ def _add_cube(
         cube.solref = list(params.gripper.cube_solref)
     body.add_site(name=CUBE_CENTRE_SITE, pos=centre, size=[0.005, 0.0, 0.0])
     spec.add_exclude(bodyname1=GRIPPER_BODY, bodyname2=CUBE_BODY)
-    if params.gripper.welded:
+    if params.gripper.grasp == "weld":
         weld = spec.add_equality(
             name=GRIP_WELD,
             type=mujoco.mjtEq.mjEQ_WELD,

@@ -70,9 +70,7 @@ class LinkParams:
     capsule_radius_m: float = 0.06
 
 
-GRASPS: tuple[str, ...] = ("friction", "weld", "weld-slip")
-#: grasps that weld the cube to the palm (one rigid gripper body, no finger joints)
-WELD_GRASPS: tuple[str, ...] = ("weld", "weld-slip")
+GRASPS: tuple[str, ...] = ("friction", "weld")
 
 
 @dataclass(frozen=True)
@@ -86,13 +84,7 @@ class GripperParams:
     (pad friction 0.7), each pad pressed by at most ``pad_force_n``; the gripper command opens
     them at the release step, and the cube may slip out earlier. ``"weld"``: the
     cube is welded to the palm and let go exactly when the gripper command opens; it can never
-    be lost before. ``"weld-slip"``: the weld, let go early when the pads' friction could not
-    have held the cube. Every 10 ms the force the gripper puts on the cube, m·(a − g) from its
-    velocity over the last 10 ms, is split into the squeeze axis (the fingers', taken by the
-    pads' normal force) and the plane of the pads. In that plane friction holds up to
-    ``slip_hold_n``; above it the cube creeps along the pads (Coulomb sliding, the same limit
-    as kinetic friction) until its creep reaches ``slip_out_m``, when the weld lets go and the
-    cube flies free. As cheap as the weld (no finger joints, no pad contacts).
+    be lost before.
 
     Attributes:
         finger_tip_m: friction grasp: how far beyond the site the fingers' collision boxes
@@ -127,10 +119,6 @@ class GripperParams:
             MuJoCo's default (0.02, 1) put held case 3's J 22 % low and ramped case 5's trace
             correlation at 0.941; these meet every target there. The weld grasp keeps the
             defaults, so the ``fast`` preset's throws do not change.
-        slip_hold_n: weld-slip: the largest force in the pads' plane that their friction holds
-            the cube against (N, both pads). Chosen by measurement against the published
-            simulator (docs/bench/paper.md (f)).
-        slip_out_m: weld-slip: the creep along the pads at which the cube leaves them (m).
         impratio, noslip_iterations: MuJoCo options the friction grasp sets on the whole
             model. The published model carries 10 and 5; 5 no-slip iterations made episodes
             about twice as slow and agreed with fewer of its slip verdicts (10 of 12 against
@@ -157,8 +145,6 @@ class GripperParams:
     cube_solref: tuple[float, float] = (0.08, 0.3)
     impratio: float = 10.0
     noslip_iterations: int = 0
-    slip_hold_n: float = 8.0
-    slip_out_m: float = 0.1
 
     def __post_init__(self) -> None:
         if self.grasp not in GRASPS:
@@ -167,11 +153,6 @@ class GripperParams:
             raise ValueError("pad_friction needs at least one pad")
         if self.pad_force_n <= 0 or self.pad_gap_m <= 0 or self.close_time_s <= 0:
             raise ValueError("pad_force_n, pad_gap_m and close_time_s must be > 0")
-        if not (self.slip_hold_n > 0 and self.slip_out_m > 0):
-            raise ValueError(
-                f"slip_hold_n and slip_out_m must be > 0, got {self.slip_hold_n} N and "
-                f"{self.slip_out_m} m"
-            )
         for name in ("pad_solref", "finger_solref", "cube_solref"):
             timeconst, dampratio = getattr(self, name)
             if timeconst <= 0 or dampratio <= 0:
@@ -179,11 +160,6 @@ class GripperParams:
                     f"{name} needs a time constant > 0 s and a damping ratio > 0, "
                     f"got ({timeconst}, {dampratio})"
                 )
-
-    @property
-    def welded(self) -> bool:
-        """Whether the cube is welded to the palm (one rigid gripper body, no finger joints)."""
-        return self.grasp in WELD_GRASPS
 
     @property
     def mass_kg(self) -> float:

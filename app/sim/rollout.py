@@ -75,7 +75,6 @@ from app.sim.model import (
     EEF_VEL_SENSOR,
     GRIP_ACTUATOR,
     GRIP_WELD,
-    GRIPPER_BODY,
     HAMMER_BODY,
     OBJECT_LINVEL_SENSOR,
     OBJECT_POS_SENSOR,
@@ -86,7 +85,7 @@ from app.sim.model import (
     effective_params,
     hinge_joint_name,
 )
-from app.sim.params import ArmParams, GripperParams
+from app.sim.params import ArmParams
 from app.sim.presets import Preset, get_preset
 
 OBJECTIVE_HZ = 100.0  # the tip-speed grid of `max_tip_speed` and `tip_speed_100hz`
@@ -192,8 +191,7 @@ class RolloutResult:
         objective_rule: which scoring rule ``objective`` follows ("paper" or "published").
         objective_by_rule: the objective under every rule, same episode.
         cube_lost_before_release: throw with the friction grasp: whether the pads lost the
-            cube before the release step's end (it slipped out); with ``"weld-slip"``: whether
-            it crept off them before then; False with the weld; else None.
+            cube before the release step's end (it slipped out); False with the weld; else None.
         last_pad_contact_s: throw, friction grasp: last 100 Hz sample with a pad touching the
             cube (s); None when it never touched or without pads.
     """
@@ -264,7 +262,6 @@ class _Layout:
     object_linvel: int
     plate: int
     weld: int
-    gripper_body: int  # −1 without a gripper
     hinge_qposadr: np.ndarray  # (3, 2, n−1)
     hinge_limit: np.ndarray  # (3, 2, n−1)
     object_mass_kg: float
@@ -297,7 +294,6 @@ def _layout(model: mujoco.MjModel, task: str, params: ArmParams) -> _Layout:
         object_linvel=_sensor_adr(model, OBJECT_LINVEL_SENSOR),
         plate=_sensor_adr(model, PLATE_SENSOR),
         weld=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_EQUALITY, GRIP_WELD),
-        gripper_body=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, GRIPPER_BODY),
         hinge_qposadr=adr,
         hinge_limit=lim,
         object_mass_kg=float(model.body(obj_body).mass[0]) if obj_body else 0.0,
@@ -451,47 +447,6 @@ def linear_commands(rows: np.ndarray, n_ctrl: int) -> np.ndarray:
     return out.reshape(horizon * n_ctrl, nu)
 
 
-class _PadSlip:
-    """The ``"weld-slip"`` grasp's creep of the cube along the pads (``GripperParams``).
-
-    ``update`` is called every ``dt_s`` (the 100 Hz objective grid) with the cube centre's
-    world velocity (3,) m/s and the gripper's rotation (3, 3) (columns = its axes in the world;
-    the fingers close along its x). It returns True when the creep has reached
-    ``slip_out_m``: the cube has left the pads.
-    """
-
-    def __init__(
-        self, gp: GripperParams, mass_kg: float, gravity_m_s2: np.ndarray, dt_s: float
-    ) -> None:
-        self.hold_n, self.out_m = gp.slip_hold_n, gp.slip_out_m
-        self.mass_kg, self.dt_s = mass_kg, dt_s
-        self.gravity = np.asarray(gravity_m_s2, dtype=np.float64).copy()
-        self.prev_vel = np.zeros(3)  # the arm starts at rest
-        self.creep_vel = np.zeros(2)  # the cube's velocity along the pads (y, z), m/s
-        self.creep_m = np.zeros(2)
-
-    def update(self, cube_vel: np.ndarray, rot: np.ndarray) -> bool:
-        accel = (cube_vel - self.prev_vel) / self.dt_s
-        self.prev_vel = cube_vel.copy()
-        # the force the gripper must put on the cube, in the pads' plane (gripper y, z)
-        force = rot[:, 1:].T @ (self.mass_kg * (accel - self.gravity))
-        f_n, v_n = math.hypot(*force), math.hypot(*self.creep_vel)
-        if v_n == 0.0:
-            if f_n <= self.hold_n:
-                return False  # static friction holds
-            # sliding starts: the cube lags behind the force it does not get
-            self.creep_vel = -(force / f_n) * (f_n - self.hold_n) / self.mass_kg * self.dt_s
-        else:
-            new = self.creep_vel - (force + self.hold_n * self.creep_vel / v_n) / (
-                self.mass_kg / self.dt_s
-            )
-            # kinetic friction stops the creep (it cannot reverse it) once the load drops
-            stuck = float(new @ self.creep_vel) <= 0.0 and f_n <= self.hold_n
-            self.creep_vel = np.zeros(2) if stuck else new
-        self.creep_m += self.creep_vel * self.dt_s
-        return math.hypot(*self.creep_m) >= self.out_m
-
-
 class Episode:
     """One episode, one control step at a time: the loop ``rollout`` itself runs.
 
@@ -561,13 +516,6 @@ class Episode:
         self.release: int | None = None  # t_R once the gripper command opened
         self._prev_row = np.zeros(self.nu)  # the "linear" ramp starts from all zeros
         self._tau = np.arange(n_ctrl) / max(n_ctrl - 1, 1) if n_ctrl > 1 else np.ones(1)
-        #: weld-slip: the time the cube left the pads (s), None while it holds
-        self.slip_s: float | None = None
-        self._slip = (
-            _PadSlip(params.gripper, lay.object_mass_kg, model.opt.gravity, n_obj * dt)
-            if task == "throw" and params.gripper.grasp == "weld-slip"
-            else None
-        )
         # mj_step1 computes position/velocity quantities and sensors of the current state; the
         # following mj_step2 finishes that physics step. So every sample reads the state
         # exactly at its time at no extra cost (acceleration-stage sensors, the plate's touch
@@ -663,8 +611,6 @@ class Episode:
                         step(model, data)
                 step1(model, data)
             self._record(idx)
-            if self._slip is not None and k % self.n_obj == 0 and data.eq_active[lay.weld]:
-                self._check_slip(k)
             idx += 1
         self._idx = idx
         self._prev_row = row
@@ -672,16 +618,6 @@ class Episode:
         # MuJoCo counts unstable states (and resets them) rather than stopping: check the
         # counters once per control step, so a blow-up is caught within 5 s / H.
         _check_warnings(data.warning, self.task, self.preset.name, end * self.dt)
-
-    def _check_slip(self, k: int) -> None:
-        """weld-slip: let the cube go at physics step ``k`` if it has crept off the pads."""
-        data, lay, slip = self.data, self.layout, self._slip
-        assert slip is not None
-        vel = data.sensordata[lay.object_linvel : lay.object_linvel + 3]
-        if slip.update(vel, data.xmat[lay.gripper_body].reshape(3, 3)):
-            data.eq_active[lay.weld] = 0
-            mujoco.mj_step1(self.model, data)  # rebuild the constraints without the weld
-            self.slip_s = k * self.dt
 
     def result(self) -> RolloutResult:
         """The episode's RolloutResult (as ``rollout`` gives); ValueError before the last step."""
@@ -742,9 +678,7 @@ def _finish(ep: Episode, release: int | None) -> RolloutResult:
             release,
             rule,
         )
-        if ep._slip is not None:
-            lost = ep.slip_s is not None and ep.slip_s < release * n_ctrl * dt - 0.5 * dt
-        elif lay.pads:
+        if lay.pads:
             touching = (sensors[:, list(lay.pads)] > 0.0).any(axis=1) & is_obj
             hit = np.flatnonzero(touching)
             last_contact = float(pts[hit[-1]] * dt) if hit.size else None

@@ -1,15 +1,18 @@
-"""Choose the weld-slip grasp's two settings against the published simulator's throws.
+"""Each throw grasp against the published simulator, on its reference throws and on optimised ones.
 
 Cases: the published reference throws (../shared/fidelity, 12 held + 6 ramped, copied in
-tests/sim/data) and the sweep's optimised throws run through the published simulator
+tests/sim/data) and the optimiser sweep's best throws run through the published simulator
 (tests/sim/data/published_optimised_throws.json, ramped: what the optimisers actually hand
-over, where fast swings lose the cube). For each (``slip_hold_n``, ``slip_out_m``) on the grid
-it runs every case in ``--preset`` with the grasp ``weld-slip`` and prints, beside the weld's
-own row: slip verdicts that agree with the published simulator's, the mean and median |ΔJ|
-(published rule) and the per-θ correlation of J on the optimised throws.
+over, where fast swings lose the cube). Each case runs in each (preset, its own grasp): the weld
+of ``fast`` and the friction grasp of ``reference``. Printed per row: the slip verdicts that
+agree with the published simulator's, the mean and median |ΔJ| (published rule), and on the
+optimised throws the mean ΔJ and the per-θ correlation of J; CPU seconds for the row.
 
-    nice -n 10 python benchmarks/slip_calibrate.py --hold-n 6 8 12 16 --out-m 0.034 0.1 \
-        --with-reference
+    nice -n 10 python benchmarks/grasp_vs_published.py --presets fast reference
+
+(Session 13 also calibrated a ``weld-slip`` grasp with this script's forerunner,
+``benchmarks/slip_calibrate.py`` at commit e96ce26; its table is
+docs/bench/paper/slip_calibrate_session13.md.)
 """
 
 from __future__ import annotations
@@ -17,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -66,8 +68,8 @@ def load_cases() -> list[dict]:
     return cases
 
 
-def score(cases: list[dict], preset: Preset, params: ArmParams | None = None) -> dict:
-    """Run every case in ``preset`` (``params``); agreement with the published sim, per group."""
+def score(cases: list[dict], preset: Preset) -> dict:
+    """Run every case in ``preset``; agreement with the published simulator, per group."""
     out: dict = {}
     t0 = time.process_time()
     for c in cases:
@@ -76,7 +78,6 @@ def score(cases: list[dict], preset: Preset, params: ArmParams | None = None) ->
             np.asarray(c["pressures_pa"]),
             release_step=c["release_step"],
             preset=preset,
-            params=params,
             command_hold=c["hold"],
             objective_rule="published",
         )
@@ -105,36 +106,23 @@ def row(label: str, res: dict) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--preset", default="fast")
-    ap.add_argument("--hold-n", type=float, nargs="+", default=[6.0, 8.0, 12.0, 16.0])
-    ap.add_argument("--out-m", type=float, nargs="+", default=[0.034, 0.1])
-    ap.add_argument(
-        "--with-reference", action="store_true", help="add the reference preset's friction grasp"
-    )
+    ap.add_argument("--presets", nargs="+", default=["fast", "reference"])
     args = ap.parse_args()
     cases = load_cases()
-    base = get_preset(args.preset)
     print(
-        f"*{len(cases)} published throws; preset {args.preset} (physics), scoring rule "
-        "published; each group's slip verdicts that agree, and |ΔJ| mean / median*\n"
+        f"*{len(cases)} published throws, scoring rule published; each group's slip verdicts "
+        "that agree, and |ΔJ| mean / median*\n"
     )
     print(
-        "| grasp | held: verdicts | held: abs ΔJ | ramped: verdicts | ramped: abs ΔJ | "
+        "| preset (grasp) | held: verdicts | held: abs ΔJ | ramped: verdicts | ramped: abs ΔJ | "
         "optimised: verdicts | optimised: abs ΔJ | optimised: mean ΔJ | optimised: J corr | "
         "CPU s |"
     )
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
-    weld = replace(base, name=f"{base.name}-weld", grasp="weld")
-    print(row("weld", score(cases, weld)), flush=True)
-    if args.with_reference:
-        print(row("friction (reference preset)", score(cases, get_preset("reference"))), flush=True)
-    for hold_n in args.hold_n:
-        for out_m in args.out_m:
-            p = replace(base, name=f"{base.name}-slip", grasp="weld-slip")
-            arm = ArmParams()
-            gp = replace(arm.gripper, slip_hold_n=hold_n, slip_out_m=out_m)
-            res = score(cases, p, replace(arm, gripper=gp))
-            print(row(f"weld-slip {hold_n:g} N, {out_m:g} m", res), flush=True)
+    for name in args.presets:
+        preset = get_preset(name)
+        grasp = preset.grasp or ArmParams().gripper.grasp
+        print(row(f"{name} ({grasp})", score(cases, preset)), flush=True)
 
 
 if __name__ == "__main__":
