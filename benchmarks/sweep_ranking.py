@@ -2,7 +2,8 @@
 
     python benchmarks/sweep_ranking.py --grid docs/bench/paper/grid/results.csv \
         --sweep docs/bench/optim/paper_sweep/results.csv --levels 2 5 --budget 100
-    python benchmarks/sweep_ranking.py --sweep docs/bench/optim/paper_sweep/results.csv
+    python benchmarks/sweep_ranking.py --sweep docs/bench/optim/paper_sweep/results.csv \
+        --before docs/bench/paper/grid/results.csv docs/bench/optim/paper_sweep/fast-r1/results.csv
 
 The paper grid (``handful bench paper``) holds random search, the paper's CEM (σ₀ = 1/√12),
 BO-LEI, BO-UCB and handful's default (BO fits ``warm``); the sweep's own cache (``handful bench
@@ -12,6 +13,8 @@ the script refuses a mix. ``--grid`` may be left out where the sweep holds every
 handful's default included (the sweep in `fast` revision 2). Per task and P it prints every
 method's best objective after ``--budget`` trials, mean ± std (ddof 0) over the seeds that
 reached it (n), best first, and Welch's two-sided p of handful's default against each.
+``--before`` sets an earlier ranking beside it (its own settings, e.g. the same methods in
+`fast-r1`): each method's value then and its rank then.
 """
 
 from __future__ import annotations
@@ -38,21 +41,39 @@ def load(path: Path, source: str) -> list[dict]:
     return rows
 
 
+def settings_of(rows: list[dict]) -> tuple[str, str, str]:
+    """The one (preset, command hold, scoring rule) of ``rows``; exits on a mix."""
+    settings = {(r["preset"], r["command_hold"], r["objective_rule"]) for r in rows}
+    if len(settings) != 1:
+        raise SystemExit(f"the caches mix settings (preset, hold, rule): {sorted(settings)}")
+    return settings.pop()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
         "--grid", type=Path, default=None, help="the paper grid's results.csv (optional)"
     )
     ap.add_argument("--sweep", type=Path, required=True, help="the sweep's results.csv")
+    ap.add_argument(
+        "--before",
+        type=Path,
+        nargs="+",
+        default=None,
+        help="results.csv files of an earlier ranking (grid first, if any) to set beside it",
+    )
     ap.add_argument("--levels", type=int, nargs="+", default=[2, 5])
     ap.add_argument("--budget", type=int, default=100)
     args = ap.parse_args()
     rows = (load(args.grid, "grid") if args.grid else []) + load(args.sweep, "sweep")
-    settings = {(r["preset"], r["command_hold"], r["objective_rule"]) for r in rows}
-    if len(settings) != 1:
-        raise SystemExit(f"the two caches mix settings (preset, hold, rule): {sorted(settings)}")
-    preset, hold, rule = settings.pop()
+    preset, hold, rule = settings_of(rows)
     table = best_at(rows, [args.budget])
+    before: dict = {}
+    if args.before:
+        sources = ["grid", "sweep"] if len(args.before) == 2 else ["sweep"]
+        old = [r for path, src in zip(args.before, sources, strict=True) for r in load(path, src)]
+        old_preset = settings_of(old)[0]
+        before = best_at(old, [args.budget])
     print(f"preset {preset}, command hold {hold}, scoring rule {rule}; best after {args.budget}")
     for task in ("throw", "hammer"):
         digits = 2 if task == "throw" else 3
@@ -61,15 +82,32 @@ def main() -> None:
             if not cells:
                 continue
             ref = cells.get(DEFAULT_METHOD, [])
+            old_cells = {m: v for (t, m, lv, _b), v in before.items() if (t, lv) == (task, p)}
+            old_rank = {
+                m: i
+                for i, (m, _v) in enumerate(
+                    sorted(old_cells.items(), key=lambda kv: -float(np.mean(kv[1]))), start=1
+                )
+            }
+            extra = f" {old_preset}: best after {args.budget} | rank then |" if before else ""
             print(f"\n{task}, P = {p}\n")
-            print(f"| method | best after {args.budget} | n | p vs {DEFAULT_METHOD} |")
-            print("|---|---:|---:|---:|")
-            for m, v in sorted(cells.items(), key=lambda kv: -float(np.mean(kv[1]))):
+            print(f"| method | best after {args.budget} | n | p vs {DEFAULT_METHOD} |{extra}")
+            print("|---|---:|---:|---:|" + ("---:|---:|" if before else ""))
+            ranked = sorted(cells.items(), key=lambda kv: -float(np.mean(kv[1])))
+            for m, v in ranked:
                 pv = welch_p(ref, v) if m != DEFAULT_METHOD else None
-                print(
+                line = (
                     f"| {m} | {np.mean(v):.{digits}f} ± {np.std(v):.{digits}f} | {len(v)} | "
                     f"{'–' if pv is None else f'{pv:.2g}'} |"
                 )
+                if before:
+                    o = old_cells.get(m)
+                    line += (
+                        f" {np.mean(o):.{digits}f} ± {np.std(o):.{digits}f} | {old_rank[m]} |"
+                        if o
+                        else " – | – |"
+                    )
+                print(line)
 
 
 if __name__ == "__main__":

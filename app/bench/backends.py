@@ -7,7 +7,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from app.bench.cache import RunBusy, cached_rows, run_dir, trials_done, write_run
+from app.bench.cache import RunBusy, cached_rows, run_dir, stored_rows, trials_done, write_run
 from app.bench.runner import run_one
 from app.bench.specs import RunSpec
 from app.optim import SettingsError
@@ -26,8 +26,11 @@ def run_sweep(
     workers: int | None = None,
     progress: bool = True,
     busy: list[RunBusy] | None = None,
+    stored: Sequence[RunSpec] = (),
 ) -> dict[RunSpec, list[dict[str, Any]]]:
-    """Run every spec not already cached in ``out``; return all runs' rows.
+    """Run every spec not already cached in ``out``; return all runs' rows, plus whatever
+    ``out`` holds of the ``stored`` specs (finished or not; never run here): the other runs
+    of the same grid that the outputs show beside this invocation's.
 
     Backends: ``local`` (a process pool over ``workers`` cores, default all) or ``ray``
     (``ray.init(address)``; a local Ray instance when ``address`` is None). Progress bars count
@@ -131,4 +134,8 @@ def run_sweep(
     finally:
         bar_trials.close()
         bar_runs.close()
+    ran = {s.key for s in results}
+    for s in stored:
+        if s.key not in ran and (rows := stored_rows(s, out)):
+            results[s] = rows
     return results

@@ -193,9 +193,8 @@ def optim(
             workers=workers or None,
             progress=progress,
             busy=busy,
+            stored=whole,
         )
-        ran = {s.key for s in runs}
-        runs |= {s: r for s in whole if s.key not in ran and (r := bench.stored_rows(s, out))}
         specs = [s for s in whole if s in runs] + [s for s in runs if s not in set(whole)]
     bench.write_outputs(out, specs, runs, budgets)
     typer.echo((out / "summary.md").read_text())

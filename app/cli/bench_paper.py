@@ -124,9 +124,8 @@ def paper(
             workers=workers or None,
             progress=progress,
             busy=busy,
+            stored=stored_specs,
         )
-        ran = {s.key for s in runs}
-        runs |= {s: r for s in stored_specs if s.key not in ran and (r := stored_rows(s, out))}
     rows = [r for s, run in runs.items() for r in result_rows(s, run)]
     out.mkdir(parents=True, exist_ok=True)
     write_results_csv(out / "results.csv", rows)

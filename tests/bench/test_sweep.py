@@ -122,6 +122,24 @@ def test_an_interrupted_or_extended_run_resumes_to_the_same_result(tmp_path):
     assert len(bench.read_run(part_dir / f"{spec5.key}.csv")) == 5
 
 
+def test_a_sweep_adds_the_stored_runs_of_its_grid_without_running_them(tmp_path):
+    asked = bench.RunSpec("cem", "hammer", 2, 0, 3, "fast")
+    finished = bench.RunSpec("cem", "hammer", 2, 1, 3, "fast")
+    unfinished = bench.RunSpec("cem", "hammer", 2, 2, 3, "fast")
+    absent = bench.RunSpec("cem", "hammer", 2, 3, 3, "fast")
+    done = bench.run_one(finished, tmp_path)
+    part = bench.run_dir(tmp_path) / f"{unfinished.key}.part.csv"
+    bench.write_part(part, bench.run_one(unfinished, tmp_path / "elsewhere")[:2])
+    runs = bench.run_sweep(
+        [asked], tmp_path, workers=1, progress=False, stored=[asked, finished, unfinished, absent]
+    )
+    assert set(runs) == {asked, finished, unfinished}  # nothing of ``absent`` to show
+    assert len(runs[asked]) == 3  # the one asked for ran
+    assert runs[finished] == done
+    assert len(runs[unfinished]) == 2 and part.exists()  # shown as it stands, not run on
+    assert not (bench.run_dir(tmp_path) / f"{absent.key}.csv").exists()
+
+
 def test_a_part_file_replaced_under_a_running_run_is_written_anew(tmp_path):
     """A git checkout (or stash) of the committed cache replaces a running run's part file:
     the run writes it anew from its own rows, so stopping it afterwards loses nothing."""
