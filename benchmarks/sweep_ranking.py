@@ -12,7 +12,8 @@ the paper's full GP refits). Both must come from one preset, command hold and sc
 the script refuses a mix. ``--grid`` may be left out where the sweep holds every method,
 handful's default included (the sweep in `fast` revision 2). Per task and P it prints every
 method's best objective after ``--budget`` trials, mean ± std (ddof 0) over the seeds that
-reached it (n), best first, and Welch's two-sided p of handful's default against each.
+reached it (n), best first, Welch's two-sided p of handful's default against each, and the
+paper's number where the paper has the method (random search, its CEM, BO-LEI, BO-UCB).
 ``--before`` sets an earlier ranking beside it (its own settings, e.g. the same methods in
 `fast-r1`): each method's value then and its rank then.
 """
@@ -24,12 +25,15 @@ from pathlib import Path
 
 import numpy as np
 
+from app.bench.paper import paper_value
 from app.bench.report import read_results_csv
 from app.bench.stats import best_at, welch_p
 from app.optim import DEFAULT_METHOD
 
 #: the name each cache's CEM gets in the ranking (they differ in their initial spread)
 CEM_NAMES = {"grid": "cem (paper σ₀)", "sweep": "cem (σ₀ = 1)"}
+#: the paper's name of a ranked method, where it differs (only the paper's own CEM has a row)
+PAPER_NAMES = {CEM_NAMES["grid"]: "cem"}
 
 
 def load(path: Path, source: str) -> list[dict]:
@@ -91,14 +95,22 @@ def main() -> None:
             }
             extra = f" {old_preset}: best after {args.budget} | rank then |" if before else ""
             print(f"\n{task}, P = {p}\n")
-            print(f"| method | best after {args.budget} | n | p vs {DEFAULT_METHOD} |{extra}")
-            print("|---|---:|---:|---:|" + ("---:|---:|" if before else ""))
+            print(
+                f"| method | best after {args.budget} | n | p vs {DEFAULT_METHOD} | paper |{extra}"
+            )
+            print("|---|---:|---:|---:|---:|" + ("---:|---:|" if before else ""))
             ranked = sorted(cells.items(), key=lambda kv: -float(np.mean(kv[1])))
             for m, v in ranked:
                 pv = welch_p(ref, v) if m != DEFAULT_METHOD else None
+                ref_paper = paper_value(task, PAPER_NAMES.get(m, m), p, args.budget)
                 line = (
                     f"| {m} | {np.mean(v):.{digits}f} ± {np.std(v):.{digits}f} | {len(v)} | "
-                    f"{'–' if pv is None else f'{pv:.2g}'} |"
+                    f"{'–' if pv is None else f'{pv:.2g}'} | "
+                    + (
+                        f"{ref_paper[0]:.{digits}f} ± {ref_paper[1]:.{digits}f} |"
+                        if ref_paper
+                        else "– |"
+                    )
                 )
                 if before:
                     o = old_cells.get(m)
