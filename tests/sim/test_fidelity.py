@@ -187,13 +187,13 @@ OPTIMISED = json.loads(
 
 
 def test_fast_weld_scores_the_optimisers_best_throws_as_the_published_simulator_does() -> None:
-    """The sweep's 75 best throws (fast, ramped, published rule), run through the published
+    """The sweep's 110 best throws (fast, ramped, published rule), run through the published
     simulator: every one loses the cube before its release step there, yet ``fast``'s weld,
-    which never does, scores them as closely as the reference friction grasp that loses all 75
-    (docs/bench/paper.md (f): mean |ΔJ| 1.21 against 1.25, correlation 0.968 against 0.971).
-    This is where the weld earns its place in the paper-matching preset."""
+    which never does, scores them as closely as the reference friction grasp that loses all
+    110 (docs/bench/paper.md (f): mean |ΔJ| 1.14 against 1.26, correlation 0.969 against
+    0.973). This is where the weld earns its place in the paper-matching preset."""
     cases = OPTIMISED["cases"]
-    assert len(cases) == 75 and all(c["cube_lost_before_release"] for c in cases)
+    assert len(cases) == 110 and all(c["cube_lost_before_release"] for c in cases)
     results = rollout_batch(
         "throw",
         [np.asarray(c["pressures_pa"]) for c in cases],
@@ -237,9 +237,10 @@ def test_fast_revision_2_scores_the_optimisers_best_hammers_nearer_the_published
 ):
     """The sweep's best hammer schedules (ramped, published rule), run through the published
     simulator: revision 1 of ``fast`` had scored them 1.6 too high on average (correlation 0.20:
-    its arm passed through itself into swings the published arm cannot make); revision 2, 0.49
-    too high, correlation 0.67 (docs/bench/paper.md (e⁵)). Revision 2 also still reproduces
-    what its sweep stored, so the cached runs stand for today's physics."""
+    its best strikes landed on the control-step ends whose plate reading counts, the published
+    arm's do not); revision 2, 0.49 too high, correlation 0.67 (docs/bench/paper.md (e⁵)).
+    Revision 2 also still reproduces what its sweep stored, so the cached runs stand for
+    today's physics."""
     j, j_sweep, j_pub = _best_hammers("fast")
     np.testing.assert_allclose(j, j_sweep, rtol=1e-9)
     assert np.abs(j - j_pub).mean() < 0.75
