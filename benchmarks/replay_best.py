@@ -35,8 +35,9 @@ from pathlib import Path
 import numpy as np
 
 from app.bench.cache import read_run
+from app.bench.runner import episode_fn
 from app.policy import Policy
-from app.sim import SimulationDiverged, rollout
+from app.sim import SimulationDiverged
 
 RUN = re.compile(
     r"^(?P<task>throw|hammer)_P(?P<P>\d+)_(?P<method>.+)_s(?P<seed>\d+)_(?P<rest>.+)\.csv$"
@@ -89,15 +90,9 @@ def main() -> None:
             "J_sweep": float(best["objective"]),
         }
         for name, preset in (("own", args.preset), ("against", args.against)):
+            episode = episode_fn(task, levels, preset, args.command_hold, args.objective)
             try:
-                res = rollout(
-                    task,
-                    d.pressure_schedule_pa,
-                    release_step=d.release_step,
-                    preset=preset,
-                    command_hold=args.command_hold,
-                    objective_rule=args.objective,
-                )
+                res = episode(theta)
             except SimulationDiverged as exc:
                 rec[f"J_{name}"] = None
                 rec[f"error_{name}"] = str(exc)

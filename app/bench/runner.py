@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -28,6 +28,9 @@ from app.bench.cache import (
 )
 from app.bench.specs import HORIZON, RunSpec
 from app.optim import Observation, build_optimizer
+
+if TYPE_CHECKING:
+    from app.sim import RolloutResult
 
 
 def _finite_or_worst(value: float, rows: list[dict[str, Any]]) -> float:
@@ -101,6 +104,35 @@ def _part_writer(
         yield append
 
 
+def episode_fn(
+    task: str,
+    levels: int,
+    preset: str,
+    command_hold: str = "zero",
+    objective_rule: str = "paper",
+) -> Callable[[np.ndarray], RolloutResult]:
+    """θ (D,) → one simulated episode's RolloutResult (policy decode → rollout), with the
+    commands held or ramped and scored by the rule given (``app.sim.rollout``). Raises
+    SimulationDiverged as ``rollout`` does."""
+    from app.policy import RELEASE_TASKS, Policy
+    from app.sim import rollout
+
+    policy = Policy(levels=levels, with_release=task in RELEASE_TASKS)
+
+    def episode(theta: np.ndarray) -> RolloutResult:
+        d = policy.decode(np.clip(theta, 0.0, 1.0))
+        return rollout(
+            task,
+            d.pressure_schedule_pa,
+            release_step=d.release_step,
+            preset=preset,
+            command_hold=command_hold,
+            objective_rule=objective_rule,
+        )
+
+    return episode
+
+
 def objective_fn(
     task: str,
     levels: int,
@@ -108,27 +140,17 @@ def objective_fn(
     command_hold: str = "zero",
     objective_rule: str = "paper",
 ) -> Callable[[np.ndarray], float]:
-    """θ (D,) → the task objective of one simulated episode (policy decode → rollout), with
-    the commands held or ramped and scored by the rule given (``app.sim.rollout``)."""
-    from app.policy import RELEASE_TASKS, Policy
-    from app.sim import SimulationDiverged, rollout
+    """θ (D,) → the task objective of one simulated episode (``episode_fn``); NaN when the
+    simulation diverged."""
+    from app.sim import SimulationDiverged
 
-    policy = Policy(levels=levels, with_release=task in RELEASE_TASKS)
+    episode = episode_fn(task, levels, preset, command_hold, objective_rule)
 
     def f(theta: np.ndarray) -> float:
-        d = policy.decode(np.clip(theta, 0.0, 1.0))
         try:
-            res = rollout(
-                task,
-                d.pressure_schedule_pa,
-                release_step=d.release_step,
-                preset=preset,
-                command_hold=command_hold,
-                objective_rule=objective_rule,
-            )
+            return float(episode(theta).objective)
         except SimulationDiverged:
             return math.nan
-        return float(res.objective)
 
     return f
 
